@@ -1,0 +1,197 @@
+"""Every parameter of a scene: dotted name, SI unit, default, range, meaning. The one place that
+knows parameter names; the scene loader, the CLI's ``--set``, the node's declared ROS parameters
+(with descriptors) and the physics parameter vector are all built from this table.
+
+Defaults are the paper's Fig. 2/3 scene (physics.md §6).
+"""
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .physics import layout as L
+from .physics.linkage import GrashofError, check_crank_length
+
+
+class ParameterError(ValueError):
+    """A parameter value the physics cannot take; the message names the value and the limit."""
+
+    def __init__(self, name, message):
+        super().__init__(f"{name}: {message}")
+        self.name = name
+
+
+@dataclass(frozen=True)
+class ParameterSpec:
+    name: str
+    default: object
+    unit: str
+    description: str
+    low: float = -math.inf      # inclusive bounds for numbers
+    high: float = math.inf
+    low_open: bool = False      # True: value must be > low
+    choices: tuple = ()         # allowed strings (or ints) when not empty
+    allow_inf: bool = False     # +inf is a meaningful value (rigid shaft)
+
+    @property
+    def kind(self):
+        return type(self.default)
+
+    def check(self, value):
+        """Coerce ``value`` to this parameter's type or raise ParameterError with the reason."""
+        if self.choices:
+            if isinstance(self.default, int) and not isinstance(value, bool):
+                if isinstance(value, float) and value.is_integer():
+                    value = int(value)
+            if value not in self.choices:
+                raise ParameterError(self.name, f"{value!r} is not one of {list(self.choices)}")
+            return value
+        if isinstance(self.default, str):
+            if not isinstance(value, str):
+                raise ParameterError(self.name, f"expected a string, got {value!r}")
+            return value
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ParameterError(self.name, f"expected a number [{self.unit}], got {value!r}")
+        value = float(value)
+        if math.isnan(value) or (math.isinf(value) and not (self.allow_inf and value > 0)):
+            raise ParameterError(self.name, f"{value!r} is not a finite number [{self.unit}]")
+        if value < self.low or (self.low_open and value <= self.low) or value > self.high:
+            lo = '(' if self.low_open else '['
+            raise ParameterError(
+                self.name, f"{value:g} {self.unit} is outside {lo}{self.low:g}, {self.high:g}]")
+        return value
+
+
+def _spec(name, default, unit, description, **kw):
+    return ParameterSpec(name, default, unit, description, **kw)
+
+
+PHYSICS_PARAMETERS = (
+    _spec('linkage.crank_length', 0.03, 'm', 'crank O1A length a: sets the ratio (0 = neutral)',
+          low=0.0),
+    _spec('linkage.rocker_length', 0.10, 'm', 'rocker O2B length b', low=0.0, low_open=True),
+    _spec('linkage.coupler_length', 0.20, 'm', 'coupler AB length d', low=0.0, low_open=True),
+    _spec('linkage.pivot_distance', 0.20, 'm', 'frame O1O2 length h', low=0.0, low_open=True),
+    _spec('linkage.assembly_mode', 1, '-', 'branch σ of the closed-form rocker angle',
+          choices=(1, -1)),
+    _spec('linkage.crank_rate_limit', 0.01, 'm/s', 'crank-length actuator speed limit',
+          low=0.0, low_open=True),
+    _spec('linkage.crank_accel_limit', 1.0, 'm/s^2',
+          'crank-length actuator acceleration limit (keeps the rocker speed continuous)',
+          low=0.0, low_open=True),
+    _spec('inertia.motor', 0.05, 'kg*m^2', 'J1: motor, flywheel and crank', low=0.0,
+          low_open=True),
+    _spec('inertia.rocker', 0.002, 'kg*m^2', 'J2: rocker and driving parts of the clutch',
+          low=0.0),
+    _spec('inertia.clutch_driven', 0.001, 'kg*m^2',
+          'J3: driven parts of the clutch, shaft input end (0 = massless node)', low=0.0),
+    _spec('inertia.output', 0.5, 'kg*m^2', 'J4: driven shaft and everything after it',
+          low=0.0, low_open=True),
+    _spec('shaft.stiffness', 500.0, 'N*m/rad', 'torsion shaft stiffness c (.inf = rigid shaft)',
+          low=0.0, low_open=True, allow_inf=True),
+    _spec('shaft.damping', 0.0, 'N*m*s/rad', 'torsion shaft damping', low=0.0),
+    _spec('motor.model', 'induction', '-', 'induction (Kloss) | constant_torque | constant_speed',
+          choices=('induction', 'constant_torque', 'constant_speed')),
+    _spec('motor.torque', 10.0, 'N*m', 'torque of the constant_torque motor'),
+    _spec('motor.speed', 150.0, 'rad/s', 'speed of the constant_speed (ideal) source'),
+    _spec('motor.synchronous_speed', 157.08, 'rad/s', 'induction motor synchronous speed ω0',
+          low=0.0, low_open=True),
+    _spec('motor.breakdown_torque', 40.0, 'N*m', 'induction motor breakdown torque Mk',
+          low=0.0, low_open=True),
+    _spec('motor.breakdown_slip', 0.2, '-', 'induction motor breakdown slip sk',
+          low=0.0, high=1.0, low_open=True),
+    _spec('load.torque', 5.0, 'N*m', 'constant load torque on the output (positive pulls back)'),
+    _spec('load.viscous', 0.0, 'N*m*s/rad', 'viscous load coefficient', low=0.0),
+    _spec('load.quadratic', 0.0, 'N*m*s^2/rad^2', 'quadratic (mixer) load coefficient', low=0.0),
+    _spec('clutch.release', 'torque', '-',
+          'release rule: torque (clutch torque falls to 0) | twist (paper: twist falls to 0)',
+          choices=('torque', 'twist')),
+    _spec('model.formulation', 'reduced', '-',
+          'reduced (closed-form linkage) | paper (index-reduced DAE, eqs. 9, 11, 12)',
+          choices=('reduced', 'paper')),
+    _spec('model.baumgarte', 200.0, '1/s', 'constraint stabilization rate of the paper formulation',
+          low=0.0),
+    _spec('initial.crank_speed', 150.0, 'rad/s', 'crank speed ω1 at t = 0'),
+    _spec('solver.method', 'dopri5', '-',
+          'dopri5 (adaptive, event-located) | rk4 (fixed step, events located inside the step)',
+          choices=('dopri5', 'rk4')),
+    _spec('solver.rtol', 1e-8, '-', 'relative tolerance of dopri5', low=1e-14, high=1e-2),
+    _spec('solver.atol', 1e-10, '-', 'absolute tolerance of dopri5', low=1e-16, high=1.0),
+    _spec('solver.max_step', 0.01, 's', 'largest step of dopri5', low=0.0, low_open=True),
+    _spec('solver.fixed_step', 2e-4, 's',
+          'largest sub-step of rk4 (the step is refined further if the shaft mode needs it)',
+          low=0.0, low_open=True),
+)
+
+SPECS = {s.name: s for s in PHYSICS_PARAMETERS}
+
+
+def register(*specs):
+    """Add parameters of another layer (the node, the recorder) to the table."""
+    for s in specs:
+        SPECS[s.name] = s
+
+
+def defaults():
+    return {name: spec.default for name, spec in SPECS.items()}
+
+
+def validate(values):
+    """Complete ``values`` (dotted name → value) with defaults, coerce and check every entry.
+
+    Unknown names raise ParameterError naming the valid ones. Cross-parameter checks (Grashof,
+    the paper formulation's needs) raise ParameterError / GrashofError with value and limit.
+    """
+    out = defaults()
+    for name, value in values.items():
+        if name not in SPECS:
+            close = [n for n in SPECS if n.split('.')[-1] == name.split('.')[-1]]
+            hint = f" (did you mean {close[0]}?)" if close else ''
+            raise ParameterError(name, f"unknown parameter{hint}; valid: {', '.join(sorted(SPECS))}")
+        out[name] = SPECS[name].check(value)
+    try:
+        check_crank_length(out['linkage.crank_length'], out['linkage.rocker_length'],
+                           out['linkage.coupler_length'], out['linkage.pivot_distance'])
+    except GrashofError as exc:
+        raise GrashofError(f"linkage.crank_length: {exc}", exc.value, exc.limit) from None
+    if out['model.formulation'] == 'paper' and out['inertia.rocker'] <= 0.0:
+        raise ParameterError('inertia.rocker', 'the paper formulation needs J2 > 0 (it divides by '
+                             'the rocker inertia); use model.formulation: reduced')
+    return out
+
+
+def parameter_vector(values):
+    """The physics parameter vector P (layout.P_*) from validated values."""
+    v = values
+    P = np.zeros(L.N_PARAMS)
+    P[L.P_A] = v['linkage.crank_length']
+    P[L.P_B] = v['linkage.rocker_length']
+    P[L.P_D] = v['linkage.coupler_length']
+    P[L.P_H] = v['linkage.pivot_distance']
+    P[L.P_SIGMA] = v['linkage.assembly_mode']
+    P[L.P_J1] = v['inertia.motor']
+    P[L.P_J2] = v['inertia.rocker']
+    P[L.P_J3] = v['inertia.clutch_driven']
+    P[L.P_J4] = v['inertia.output']
+    rigid = math.isinf(v['shaft.stiffness'])
+    P[L.P_C] = 0.0 if rigid else v['shaft.stiffness']
+    P[L.P_RIGID] = 1.0 if rigid else 0.0
+    P[L.P_KD] = v['shaft.damping']
+    P[L.P_MOTOR_MODEL] = {'induction': L.MOTOR_INDUCTION, 'constant_torque':
+                          L.MOTOR_CONSTANT_TORQUE, 'constant_speed': L.MOTOR_CONSTANT_SPEED}[
+        v['motor.model']]
+    P[L.P_MOTOR_TORQUE] = v['motor.torque']
+    P[L.P_MOTOR_SPEED] = v['motor.speed']
+    P[L.P_W0] = v['motor.synchronous_speed']
+    P[L.P_MK] = v['motor.breakdown_torque']
+    P[L.P_SK] = v['motor.breakdown_slip']
+    P[L.P_LOAD_TORQUE] = v['load.torque']
+    P[L.P_LOAD_VISCOUS] = v['load.viscous']
+    P[L.P_LOAD_QUADRATIC] = v['load.quadratic']
+    P[L.P_RELEASE] = L.RELEASE_TORQUE if v['clutch.release'] == 'torque' else L.RELEASE_TWIST
+    P[L.P_FORMULATION] = (L.FORMULATION_PAPER if v['model.formulation'] == 'paper'
+                          else L.FORMULATION_REDUCED)
+    P[L.P_BAUMGARTE] = v['model.baumgarte']
+    P[L.P_TORQUE_SCALE] = max(1.0, abs(v['load.torque']), v['motor.breakdown_torque'],
+                              abs(v['motor.torque']))
+    return P

@@ -1,0 +1,69 @@
+"""The one-way clutch as a hybrid automaton (physics.md §4): witness functions and their resets.
+
+    ENGAGED ──(release guard falls through 0)──▶ DISENGAGED      reset: none (ω3 = v is continuous)
+    DISENGAGED ──(slip s = ω3 − v falls through 0)──▶ ENGAGED    reset: ω3 := v (s = 0, no impact)
+
+Release guard: the clutch torque Tc = J3·v' + Ts (``torque``, default: the clutch cannot pull) or
+the paper's torsion twist θ = φ3 − φ4 (``twist``; the two coincide as J3 → 0).
+
+Complementarity decides the mode at s = 0 (t = 0, after parameter changes, at a located switch):
+engage iff the disengaged dynamics would drive the slip negative, s'_free < 0. For one unilateral
+contact this is the same as Tc_engaged = −s'_free / W > 0 (W > 0 the inverse effective inertia at
+the contact), so engaging never produces a negative clutch torque and releasing never a negative
+slip. A grazing touch (s'_free ≥ 0 at s = 0) does not engage.
+
+Half-open rule: a guard that a segment starts on (|g| ≤ tolerance) is disarmed until it leaves
+that band, so the solver cannot loop on the switch point.
+"""
+from cvt_ros.physics.compiled import kernel
+
+from .dynamics import rhs
+from .layout import (
+    AUX_CLUTCH_TORQUE, AUX_ROCKER_SPEED, AUX_SLIP, AUX_SLIP_RATE, DISENGAGED, ENGAGED, OMEGA3,
+    OMEGA4, P_RELEASE, P_RIGID, P_TORQUE_SCALE, RELEASE_TWIST, TWIST,
+)
+
+SLIP_TOLERANCE = 1e-10     # relative to the member speeds
+TORQUE_TOLERANCE = 1e-10   # relative to the scene's torque scale
+TWIST_TOLERANCE = 1e-13    # [rad]
+
+KIND_RELEASE = 0
+KIND_ENGAGE = 1
+KIND_ENGAGE_IMPACT = 2
+KIND_GRAZE = 3  # slip touched zero without the clutch taking torque: no switch
+
+
+@kernel
+def uses_twist_release(P):
+    return P[P_RELEASE] == RELEASE_TWIST and P[P_RIGID] == 0.0
+
+
+@kernel
+def clutch_guard(mode, y, dy, aux, P):
+    """Witness value g (switch when g falls through 0) and its time derivative (nan if unknown).
+
+    ENGAGED: Tc [N·m] (or θ [rad] with twist release). DISENGAGED: slip s = ω3 − v [rad/s].
+    """
+    if mode == ENGAGED:
+        if uses_twist_release(P):
+            return y[TWIST], dy[TWIST]
+        return aux[AUX_CLUTCH_TORQUE], float('nan')
+    return aux[AUX_SLIP], aux[AUX_SLIP_RATE]
+
+
+@kernel
+def guard_tolerance(mode, y, aux, P):
+    """Half-width of the band around g = 0 inside which the guard counts as 'at zero'."""
+    if mode == ENGAGED:
+        if uses_twist_release(P):
+            return TWIST_TOLERANCE
+        return TORQUE_TOLERANCE * P[P_TORQUE_SCALE]
+    w3 = y[OMEGA3] if P[P_RIGID] == 0.0 else y[OMEGA4]
+    return SLIP_TOLERANCE * (1.0 + abs(aux[AUX_ROCKER_SPEED]) + abs(w3))
+
+
+@kernel
+def free_slip_rate(t, y, P, ACT, dy, aux):
+    """s'_free: the slip rate the DISENGAGED dynamics would give at this state [rad/s²]."""
+    rhs(t, y, DISENGAGED, P, ACT, dy, aux)
+    return aux[AUX_SLIP_RATE]

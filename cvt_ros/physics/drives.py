@@ -1,0 +1,120 @@
+"""Motor and load torques (physics.md §5) and the crank-length actuator.
+
+The actuator moves the crank length a(t) towards its command with a trapezoidal velocity profile
+(rate limit ``crank_rate_limit`` [m/s], acceleration limit ``crank_accel_limit`` [m/s²]). A pure rate
+limit would make a'' impulsive and the rocker speed v = u·ω1 + g_a·a' jump while engaged; the
+acceleration limit keeps v continuous. The profile is planned in closed form when a command
+arrives, as at most N_ACT_SEGMENTS rows (t_start, a, a', a''); the solver stops its steps at the
+row boundaries, where a'' jumps.
+"""
+import math
+
+import numpy as np
+from cvt_ros.physics.compiled import kernel
+
+from .layout import (
+    ACT_A, ACT_ACC, ACT_T, ACT_V, MOTOR_CONSTANT_TORQUE, MOTOR_INDUCTION, N_ACT_SEGMENTS,
+    P_LOAD_QUADRATIC, P_LOAD_TORQUE, P_LOAD_VISCOUS, P_MK, P_MOTOR_MODEL, P_MOTOR_TORQUE, P_SK,
+    P_W0,
+)
+
+
+@kernel
+def motor_torque(omega1, P):
+    """M1(ω1) [N·m] for the induction and constant-torque models.
+
+    Induction motor by Kloss's formula written as M1 = 2·Mk·sk·s / (s² + sk²) with slip
+    s = (ω0 − ω1)/ω0: no division by zero at s = 0, generator torque above synchronous speed.
+    The ideal speed source has no torque law; its torque is the reaction (see dynamics).
+    """
+    model = P[P_MOTOR_MODEL]
+    if model == MOTOR_INDUCTION:
+        w0 = P[P_W0]
+        sk = P[P_SK]
+        s = (w0 - omega1) / w0
+        return 2.0 * P[P_MK] * sk * s / (s * s + sk * sk)
+    if model == MOTOR_CONSTANT_TORQUE:
+        return P[P_MOTOR_TORQUE]
+    return 0.0
+
+
+@kernel
+def load_torque(omega4, P):
+    """M4(ω4) [N·m] = constant + viscous·ω4 + quadratic·ω4·|ω4| (conveyor, mixer)."""
+    return (P[P_LOAD_TORQUE] + P[P_LOAD_VISCOUS] * omega4
+            + P[P_LOAD_QUADRATIC] * omega4 * abs(omega4))
+
+
+@kernel
+def crank_actuator(t, ACT):
+    """(a, a', a'') at time t [s] from the planned profile rows."""
+    k = 0
+    for i in range(1, N_ACT_SEGMENTS):
+        if ACT[i, ACT_T] <= t:
+            k = i
+        else:
+            break
+    tau = t - ACT[k, ACT_T]
+    acc = ACT[k, ACT_ACC]
+    v0 = ACT[k, ACT_V]
+    return ACT[k, ACT_A] + v0 * tau + 0.5 * acc * tau * tau, v0 + acc * tau, acc
+
+
+@kernel
+def next_actuator_break(t, ACT):
+    """First profile row boundary strictly after t [s] (inf when none)."""
+    for i in range(1, N_ACT_SEGMENTS):
+        if ACT[i, ACT_T] > t:
+            return ACT[i, ACT_T]
+    return np.inf
+
+
+def hold_profile(t0, crank_length):
+    """A profile that holds a constant crank length from t0 on."""
+    act = np.full((N_ACT_SEGMENTS, 4), np.inf)
+    act[0] = (t0, crank_length, 0.0, 0.0)
+    return act
+
+
+def plan_profile(t0, a0, v0, target, rate_limit, accel_limit):
+    """Time-optimal trapezoidal move from (a0 [m], a'0 [m/s]) at t0 [s] to rest at ``target`` [m].
+
+    Phases: (brake to rest if moving away or unable to stop in time) → accelerate or decelerate
+    to the peak speed → cruise → decelerate to rest. Returns the profile rows.
+    """
+    rows = []
+    t, a, v = t0, a0, v0
+    dist = target - a
+    stop = v * v / (2.0 * accel_limit)
+    if v != 0.0 and (math.copysign(1.0, v) != math.copysign(1.0, dist) or stop > abs(dist)):
+        acc = -math.copysign(accel_limit, v)
+        dt = abs(v) / accel_limit
+        rows.append((t, a, v, acc))
+        a, v, t = a + v * dt + 0.5 * acc * dt * dt, 0.0, t + dt
+        dist = target - a
+    if dist != 0.0:
+        sgn = math.copysign(1.0, dist)
+        speed = abs(v)
+        peak = min(rate_limit, math.sqrt((2.0 * accel_limit * abs(dist) + speed * speed) / 2.0))
+        t_ramp = abs(peak - speed) / accel_limit
+        d_ramp = abs(peak * peak - speed * speed) / (2.0 * accel_limit)
+        d_brake = peak * peak / (2.0 * accel_limit)
+        d_cruise = max(abs(dist) - d_ramp - d_brake, 0.0)
+        if t_ramp > 0.0:
+            acc = sgn * accel_limit * (1.0 if peak > speed else -1.0)
+            rows.append((t, a, v, acc))
+            a, v, t = a + v * t_ramp + 0.5 * acc * t_ramp ** 2, sgn * peak, t + t_ramp
+        if d_cruise > 0.0:
+            rows.append((t, a, v, 0.0))
+            t_cruise = d_cruise / peak
+            a, t = a + v * t_cruise, t + t_cruise
+        rows.append((t, a, v, -sgn * accel_limit))
+        t += peak / accel_limit
+    rows.append((t, target, 0.0, 0.0))  # exactly the target from here on
+    act = np.full((N_ACT_SEGMENTS, 4), np.inf)
+    act[:len(rows)] = rows
+    return act
+
+
+__all__ = ['motor_torque', 'load_torque', 'crank_actuator', 'next_actuator_break',
+           'hold_profile', 'plan_profile', 'ACT_A', 'ACT_V', 'ACT_T', 'ACT_ACC']

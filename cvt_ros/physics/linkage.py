@@ -1,0 +1,137 @@
+"""Crank-rocker four-bar linkage (paper eq. 1, physics.md §2), solved in closed form.
+
+O1 at the origin, O2 at (h, 0), angles counter-clockwise from the ray O1→O2. The loop closure
+
+    f(φ1, φ2, a) = a² + b² + h² − d² − 2ah·cos φ1 + 2bh·cos φ2 − 2ab·cos(φ1 − φ2) = 0   (eq. 1)
+
+is solved for φ2 by Freudenstein's method, so the rocker angle is never integrated and cannot
+drift. All derivatives the dynamics need come from the implicit function theorem applied to f:
+u = ∂φ2/∂φ1 = A1/A2 (the paper's auxiliary functions), u' = ∂u/∂φ1, g_a = ∂φ2/∂a, u_a = ∂u/∂a,
+g_aa = ∂²φ2/∂a² (the last three because the crank length moves at run time, physics.md §5).
+"""
+import math
+
+from cvt_ros.physics.compiled import kernel
+
+
+class GrashofError(ValueError):
+    """A crank length or geometry for which the crank cannot turn fully (Grashof violated)."""
+
+    def __init__(self, message, value=None, limit=None):
+        super().__init__(message)
+        self.value = value
+        self.limit = limit
+
+
+def grashof_bound(rocker_length, coupler_length, pivot_distance):
+    """Largest crank length [m] (exclusive) for which the crank still turns fully.
+
+    Grashof with the crank shortest: a + max(b, d, h) ≤ (sum of the other two), and a ≤ min(b, d, h).
+    At equality the linkage folds flat (a toggle with A2 = 0, u = ∞), so the bound itself is refused.
+    """
+    b, d, h = rocker_length, coupler_length, pivot_distance
+    return min(b, d, h, b + d + h - 2.0 * max(b, d, h))
+
+
+def check_crank_length(crank_length, rocker_length, coupler_length, pivot_distance):
+    """Raise GrashofError unless 0 ≤ a < Grashof bound; return the bound [m]."""
+    bound = grashof_bound(rocker_length, coupler_length, pivot_distance)
+    a = crank_length
+    if not math.isfinite(a):
+        raise GrashofError(f"crank length {a!r} m is not a finite number", a, bound)
+    if bound <= 0.0:
+        raise GrashofError(
+            f"geometry b={rocker_length}, d={coupler_length}, h={pivot_distance} m admits no "
+            f"turning crank (Grashof: need b + d + h − 2·max(b, d, h) > 0)", a, bound)
+    if a < 0.0 or a >= bound:
+        raise GrashofError(
+            f"crank length {a:g} m is outside [0, {bound:g}) m: with b={rocker_length}, "
+            f"d={coupler_length}, h={pivot_distance} m the crank must stay shorter than the Grashof "
+            f"bound a + max(b, d, h) < sum of the other two", a, bound)
+    return bound
+
+
+@kernel
+def rocker_angle(phi1, a, b, d, h, sigma):
+    """φ2(φ1, a) [rad] from eq. 1 in closed form: P·cos φ2 + Q·sin φ2 = R."""
+    c1 = math.cos(phi1)
+    p = 2.0 * b * h - 2.0 * a * b * c1
+    q = -2.0 * a * b * math.sin(phi1)
+    r = -(a * a + b * b + h * h - d * d) + 2.0 * a * h * c1
+    ratio = r / math.sqrt(p * p + q * q)
+    # |ratio| ≤ 1 for every φ1 of a Grashof crank; clip the last-ulp excursions near the bound.
+    if ratio > 1.0:
+        ratio = 1.0
+    elif ratio < -1.0:
+        ratio = -1.0
+    return math.atan2(q, p) + sigma * math.acos(ratio)
+
+
+@kernel
+def constraint_partials(phi1, phi2, a, b, h, d):
+    """f of eq. 1 and its first and second partial derivatives at (φ1, φ2, a).
+
+    Returns (f, f1, f2, fa, f11, f12, f22, f1a, f2a, faa); f1 = 2·A1, f2 = −2·A2 (paper eq. 6).
+    """
+    s1 = math.sin(phi1)
+    c1 = math.cos(phi1)
+    s2 = math.sin(phi2)
+    c2 = math.cos(phi2)
+    s12 = math.sin(phi1 - phi2)
+    c12 = math.cos(phi1 - phi2)
+    f = a * a + b * b + h * h - d * d - 2.0 * a * h * c1 + 2.0 * b * h * c2 - 2.0 * a * b * c12
+    f1 = 2.0 * a * h * s1 + 2.0 * a * b * s12
+    f2 = -2.0 * b * h * s2 - 2.0 * a * b * s12
+    fa = 2.0 * a - 2.0 * h * c1 - 2.0 * b * c12
+    f11 = 2.0 * a * h * c1 + 2.0 * a * b * c12
+    f12 = -2.0 * a * b * c12
+    f22 = -2.0 * b * h * c2 + 2.0 * a * b * c12
+    f1a = 2.0 * h * s1 + 2.0 * b * s12
+    f2a = -2.0 * b * s12
+    return f, f1, f2, fa, f11, f12, f22, f1a, f2a, 2.0
+
+
+@kernel
+def rocker_cos_sin(phi1, a, b, d, h, sigma):
+    """(cos φ2, sin φ2, cos φ1, sin φ1) without inverse trigonometry.
+
+    With ρ² = P² + Q² and φ2 = atan2(Q, P) + σ·arccos(R/ρ):
+    cos φ2 = (P·R − σ·Q·√(ρ² − R²))/ρ²,  sin φ2 = (Q·R + σ·P·√(ρ² − R²))/ρ².
+    Two transcendental calls per evaluation instead of six: the RHS's hot path.
+    """
+    c1 = math.cos(phi1)
+    s1 = math.sin(phi1)
+    p = 2.0 * b * h - 2.0 * a * b * c1
+    q = -2.0 * a * b * s1
+    r = -(a * a + b * b + h * h - d * d) + 2.0 * a * h * c1
+    rho2 = p * p + q * q
+    root = math.sqrt(max(rho2 - r * r, 0.0))
+    return (p * r - sigma * q * root) / rho2, (q * r + sigma * p * root) / rho2, c1, s1
+
+
+@kernel
+def kinematics(phi1, a, b, d, h, sigma):
+    """Rocker angle derivatives for a crank angle φ1 [rad] and crank length a [m].
+
+    Returns (cos φ2, sin φ2, u, u', g_a, u_a, g_aa): u = ∂φ2/∂φ1 = A1/A2, u' = ∂²φ2/∂φ1²,
+    g_a = ∂φ2/∂a [rad/m], u_a = ∂²φ2/∂φ1∂a [1/m], g_aa = ∂²φ2/∂a² [rad/m²] (implicit
+    differentiation of eq. 1, with the partials of f written out below).
+    """
+    c2, s2, c1, s1 = rocker_cos_sin(phi1, a, b, d, h, sigma)
+    c12 = c1 * c2 + s1 * s2   # cos(φ1 − φ2)
+    s12 = s1 * c2 - c1 * s2   # sin(φ1 − φ2)
+    f1 = 2.0 * a * h * s1 + 2.0 * a * b * s12
+    f2 = -2.0 * b * h * s2 - 2.0 * a * b * s12
+    fa = 2.0 * a - 2.0 * h * c1 - 2.0 * b * c12
+    f11 = 2.0 * a * h * c1 + 2.0 * a * b * c12
+    f12 = -2.0 * a * b * c12
+    f22 = -2.0 * b * h * c2 + 2.0 * a * b * c12
+    f1a = 2.0 * h * s1 + 2.0 * b * s12
+    f2a = -2.0 * b * s12
+    faa = 2.0
+    u = -f1 / f2
+    ga = -fa / f2
+    up = -(f11 + 2.0 * f12 * u + f22 * u * u) / f2
+    ua = -(f1a + f12 * ga + f2a * u + f22 * u * ga) / f2
+    gaa = -(faa + 2.0 * f2a * ga + f22 * ga * ga) / f2
+    return c2, s2, u, up, ga, ua, gaa

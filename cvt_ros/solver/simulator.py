@@ -1,0 +1,345 @@
+"""The simulator: the hybrid model, its solver settings and its run-time inputs behind one object.
+
+Used by the offline CLI (``run``: as fast as possible, samples on a uniform grid), by the ROS node
+(``advance``: exactly dt per call, events located inside) and by the benchmarks. No ROS here.
+"""
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .. import parameters as params_mod
+from ..physics import layout as L
+from ..physics.clutch import KIND_ENGAGE_IMPACT, KIND_GRAZE, free_slip_rate
+from ..physics.drives import crank_actuator, hold_profile, plan_profile
+from ..physics.dynamics import engage_with_impact, energy_residual, project, rhs
+from ..physics.linkage import check_crank_length, kinematics, rocker_angle
+from . import hybrid as H
+from .output import COL, N_COLUMNS, write_sample
+from .steppers import DOPRI5, RK4
+
+TWO_PI = 2.0 * math.pi
+REBASE_TURNS = 64  # fold whole turns of φ1 and φ4 out of the state past this many (precision)
+# Fixed-step stability: h·λ_max ≤ this (RK4's stability interval is 2.78 on both axes; 0.5 also
+# keeps ≥ 12 steps per period of the fastest shaft mode).
+RK4_STEP_BY_MODE = 0.5
+
+
+class SimulationError(RuntimeError):
+    """The integration could not go on (step size underflow or a non-finite state)."""
+
+
+@dataclass
+class ClutchSwitch:
+    """A located clutch event: time [s], mode after it, kind (release / engage / graze)."""
+    t: float
+    engaged: bool
+    kind: str
+    value: float = 0.0
+
+
+@dataclass
+class RunResult:
+    samples: np.ndarray                  # (n, N_COLUMNS) rows, columns output.COLUMNS
+    switches: list = field(default_factory=list)
+    wall_time: float = 0.0
+    steps: int = 0
+    rejected: int = 0
+    energy: dict = field(default_factory=dict)
+
+    def column(self, name):
+        return self.samples[:, COL[name]]
+
+
+_KIND_NAMES = {0: 'release', 1: 'engage', 2: 'engage_impact', 3: 'graze'}
+
+
+def settings_vector(values, h_fixed):
+    S = np.zeros(H.N_SETTINGS)
+    S[H.S_METHOD] = DOPRI5 if values['solver.method'] == 'dopri5' else RK4
+    S[H.S_RTOL] = values['solver.rtol']
+    S[H.S_ATOL] = values['solver.atol']
+    S[H.S_H_FIXED] = h_fixed
+    S[H.S_MAX_STEP] = values['solver.max_step']
+    return S
+
+
+def fastest_rate(values):
+    """Largest eigenvalue magnitude λ_max [1/s] an explicit step has to resolve (bound)."""
+    c = values['shaft.stiffness']
+    kd = values['shaft.damping']
+    J2, J3, J4 = values['inertia.rocker'], values['inertia.clutch_driven'], values['inertia.output']
+    rates = [abs(values['initial.crank_speed']), values['motor.synchronous_speed']]
+    if math.isfinite(c):
+        if J3 > 0.0:
+            inv = 1.0 / J3 + 1.0 / J4           # disengaged J3–J4 mode (eq. 12)
+            rates.append(math.sqrt(c * inv) + kd * inv)
+        elif kd > 0.0:
+            rates.append(c / kd)                # massless node: first-order relaxation
+        if J2 + J3 > 0.0:
+            inv = 1.0 / J4 + 1.0 / (J2 + J3)    # engaged twist mode, bounded above
+            rates.append(math.sqrt(c * inv) + kd * inv)
+    rates.append(values['load.viscous'] / J4)
+    return max(rates)
+
+
+class Simulator:
+    """The pulse CVT as a hybrid dynamical system with event-located integration.
+
+    ``values``: scene parameters by dotted name (validated here). Time t [s] starts at 0.
+    """
+
+    def __init__(self, values=None, events_capacity=4096):
+        self.values = params_mod.validate(values or {})
+        self._events_buf = np.zeros((events_capacity, H.N_EVENT_COLUMNS))
+        self._empty_grid = np.zeros(0)
+        self._empty_out = np.zeros((0, N_COLUMNS))
+        self.reset()
+
+    # ------------------------------------------------------------------ set-up
+    def reset(self):
+        """Back to the scene's initial state (t = 0)."""
+        v = self.values
+        self.P = params_mod.parameter_vector(v)
+        self.t = 0.0
+        self.ACT = hold_profile(0.0, v['linkage.crank_length'])
+        self.crank_length_target = v['linkage.crank_length']
+        self.y = np.zeros(L.N_STATE)
+        w1 = v['motor.speed'] if v['motor.model'] == 'constant_speed' else v['initial.crank_speed']
+        self.y[L.OMEGA1] = w1
+        self.ms = np.zeros(2, dtype=np.int64)
+        self.h_io = np.zeros(1)
+        self.counters = np.zeros(H.N_COUNTERS, dtype=np.int64)
+        self.ledger = np.zeros(1)   # kinetic energy lost in impacts [J]
+        self.energy_injected = 0.0  # energy put in by live parameter changes [J]
+        self.turns_phi1 = 0.0       # angle folded out of φ1 and φ4 [rad]
+        self.turns_phi4 = 0.0
+        self.switch_count = 0
+        self._configure_steps()
+        self._set_rocker_from_linkage()
+        self._settle_clutch()
+        self.energy0 = self._energy()
+
+    def _configure_steps(self):
+        self.h_stable = RK4_STEP_BY_MODE / fastest_rate(self.values)
+        self.h_fixed = min(self.values['solver.fixed_step'], self.h_stable)
+        self.S = settings_vector(self.values, self.h_fixed)
+
+    def _set_rocker_from_linkage(self):
+        a, ad, _ = crank_actuator(self.t, self.ACT)
+        P = self.P
+        _, _, u, _, ga, _, _ = kinematics(self.y[L.PHI1], a, P[L.P_B], P[L.P_D], P[L.P_H],
+                                          P[L.P_SIGMA])
+        self.y[L.PHI2] = rocker_angle(self.y[L.PHI1], a, P[L.P_B], P[L.P_D], P[L.P_H],
+                                      P[L.P_SIGMA])
+        self.y[L.OMEGA2] = u * self.y[L.OMEGA1] + ga * ad
+
+    def _settle_clutch(self):
+        """Clutch mode by complementarity (physics.md §4), with a plastic impact if s < 0."""
+        y, P = self.y, self.P
+        self.ms[0] = L.DISENGAGED
+        project(self.t, y, L.DISENGAGED, P, self.ACT)
+        dy = np.empty(L.N_STATE)
+        aux = np.empty(L.N_AUX)
+        rhs(self.t, y, L.DISENGAGED, P, self.ACT, dy, aux)
+        slip = aux[L.AUX_SLIP]
+        w3 = y[L.OMEGA4] if P[L.P_RIGID] else y[L.OMEGA3]
+        tol = 1e-10 * (1.0 + abs(aux[L.AUX_ROCKER_SPEED]) + abs(w3))
+        if slip < -tol:
+            self.ledger[0] += engage_with_impact(self.t, y, P, self.ACT)
+            self.ms[0] = L.ENGAGED
+        elif slip <= tol and free_slip_rate(self.t, y, P, self.ACT, dy, aux) < 0.0:
+            self.ms[0] = L.ENGAGED
+        project(self.t, y, int(self.ms[0]), P, self.ACT)
+        self.ms[1] = 0  # the new mode's guard starts at zero: half-open rule
+
+    # ------------------------------------------------------------------ inputs
+    @property
+    def engaged(self):
+        return self.ms[0] == L.ENGAGED
+
+    @property
+    def crank_length(self):
+        return crank_actuator(self.t, self.ACT)[0]
+
+    @property
+    def grashof_bound(self):
+        from ..physics.linkage import grashof_bound
+        v = self.values
+        return grashof_bound(v['linkage.rocker_length'], v['linkage.coupler_length'],
+                             v['linkage.pivot_distance'])
+
+    def command_crank_length(self, target):
+        """Move the crank length to ``target`` [m] through the rate-limited actuator.
+
+        Raises GrashofError (value and bound in the message) for a length the linkage cannot take.
+        """
+        v = self.values
+        check_crank_length(target, v['linkage.rocker_length'], v['linkage.coupler_length'],
+                           v['linkage.pivot_distance'])
+        a, ad, _ = crank_actuator(self.t, self.ACT)
+        self.ACT = plan_profile(self.t, a, ad, float(target), v['linkage.crank_rate_limit'],
+                                v['linkage.crank_accel_limit'])
+        self.crank_length_target = float(target)
+
+    def set_load_torque(self, torque):
+        """Set the constant part of the load torque [N·m] (takes effect at the next step)."""
+        torque = params_mod.SPECS['load.torque'].check(torque)
+        self.values = dict(self.values, **{'load.torque': torque})
+        self.P[L.P_LOAD_TORQUE] = torque
+
+    def update_parameters(self, changes):
+        """Change parameters live. Raises ParameterError / GrashofError and changes nothing when
+        the new set is invalid. A new crank length goes through the actuator; other changes act
+        at once, the clutch mode is re-decided, and the stored energy's jump is booked."""
+        new = params_mod.validate(dict(self.values, **changes))
+        changes = {k: new[k] for k in changes}
+        e_before = self._energy()
+        target = changes.pop('linkage.crank_length', None)
+        self.values = new
+        a_now = crank_actuator(self.t, self.ACT)[0]
+        self.P = params_mod.parameter_vector(new)
+        self.P[L.P_A] = a_now
+        if 'motor.model' in changes or 'motor.speed' in changes:
+            if new['motor.model'] == 'constant_speed':
+                self.y[L.OMEGA1] = new['motor.speed']
+        self._configure_steps()
+        if self.P[L.P_FORMULATION] == L.FORMULATION_PAPER or any(
+                k.startswith('linkage.') or k == 'model.formulation' for k in changes):
+            self._set_rocker_from_linkage()
+        self._settle_clutch()
+        self.energy_injected += self._energy() - e_before
+        self.h_io[0] = 0.0
+        if target is not None:
+            self.command_crank_length(target)
+
+    # ------------------------------------------------------------------ integration
+    def _call(self, t_end, grid, out):
+        t = H.advance(self.t, t_end, self.y, self.ms, self.P, self.ACT, self.S, self.h_io, grid,
+                      out, self._events_buf, self.counters, self.ledger)
+        self.t = t
+        n_ev = int(self.counters[H.C_EVENTS])
+        switches = []
+        for row in self._events_buf[:n_ev]:
+            kind = int(row[H.E_KIND])
+            switches.append(ClutchSwitch(float(row[H.E_T]),
+                                         bool(row[H.E_MODE] == L.ENGAGED), _KIND_NAMES[kind],
+                                         float(row[H.E_VALUE])))
+            if kind != KIND_GRAZE:
+                self.switch_count += 1
+        self.counters[H.C_EVENTS] = 0
+        status = int(self.counters[H.C_STATUS])
+        if status in (H.STATUS_STEP_TOO_SMALL, H.STATUS_NONFINITE):
+            why = 'step size underflow' if status == H.STATUS_STEP_TOO_SMALL else 'non-finite state'
+            raise SimulationError(f"integration failed at t = {self.t:.9g} s: {why}")
+        return switches, status
+
+    def _advance_to(self, t_end, grid, out):
+        """Integrate to t_end, draining the event table as often as it fills."""
+        switches = []
+        while True:
+            sw, status = self._call(t_end, grid, out)
+            switches += sw
+            if status != H.STATUS_EVENTS_FULL or self.t >= t_end:
+                return switches
+
+    def advance(self, dt):
+        """Advance by exactly dt [s]; returns the clutch switches located inside the step."""
+        if not (dt > 0.0 and math.isfinite(dt)):
+            raise ValueError(f"dt must be a positive finite time, got {dt!r}")
+        if self.S[H.S_METHOD] == RK4:
+            n = max(1, math.ceil(dt / min(self.values['solver.fixed_step'], self.h_stable)
+                                 - 1e-9))
+            self.S[H.S_H_FIXED] = dt / n
+        switches = self._advance_to(self.t + dt, self._empty_grid, self._empty_out)
+        self._rebase_angles()
+        return switches
+
+    def run(self, duration, sample_dt, progress=None):
+        """Integrate for ``duration`` [s], sampling every ``sample_dt`` [s] (t = 0 included)."""
+        if not (duration > 0.0 and math.isfinite(duration)):
+            raise ValueError(f"duration must be a positive finite time, got {duration!r}")
+        if not (sample_dt > 0.0 and math.isfinite(sample_dt)):
+            raise ValueError(f"sample dt must be a positive finite time, got {sample_dt!r}")
+        t0 = self.t
+        n = int(math.floor(duration / sample_dt + 1e-9)) + 1
+        grid = t0 + sample_dt * np.arange(n)
+        out = np.empty((n, N_COLUMNS))
+        out[0] = self.sample()
+        self.counters[H.C_NEXT_SAMPLE] = 1
+        t_stop = t0 + duration
+        steps0 = int(self.counters[H.C_STEPS])
+        rej0 = int(self.counters[H.C_REJECTED])
+        switches = []
+        wall0 = time.perf_counter()
+        chunk = max(sample_dt, min(1.0, duration / 50.0))
+        t_next = t0
+        while self.t < t_stop:
+            t_next = min(t_stop, t_next + chunk)
+            # samples are written in (t, t_next]; rebasing between chunks shifts angles, so the
+            # rows are corrected by the offsets in force while they were written
+            first = int(self.counters[H.C_NEXT_SAMPLE])
+            off1, off4 = self.turns_phi1, self.turns_phi4
+            switches += self._advance_to(t_next, grid, out)
+            last = int(self.counters[H.C_NEXT_SAMPLE])
+            out[first:last, COL['phi1']] += off1
+            out[first:last, COL['phi3']] += off4
+            out[first:last, COL['phi4']] += off4
+            self._rebase_angles()
+            if progress is not None:
+                progress(self.t - t0, duration)
+        wall = time.perf_counter() - wall0
+        return RunResult(out[:int(self.counters[H.C_NEXT_SAMPLE])], switches, wall,
+                         int(self.counters[H.C_STEPS]) - steps0,
+                         int(self.counters[H.C_REJECTED]) - rej0, self.energy_balance())
+
+    def _rebase_angles(self):
+        """Fold whole turns out of φ1 and φ4 so their sines keep full precision for hours."""
+        y = self.y
+        k1 = math.floor(y[L.PHI1] / TWO_PI)
+        if abs(k1) >= REBASE_TURNS:
+            y[L.PHI1] -= k1 * TWO_PI
+            self.turns_phi1 += k1 * TWO_PI
+            # the actuator profile does not depend on φ1; the paper's φ2 is periodic in φ1
+        k4 = math.floor(y[L.PHI4] / TWO_PI)
+        if abs(k4) >= REBASE_TURNS:
+            y[L.PHI4] -= k4 * TWO_PI
+            self.turns_phi4 += k4 * TWO_PI
+
+    # ------------------------------------------------------------------ outputs
+    def _aux(self):
+        dy = np.empty(L.N_STATE)
+        aux = np.empty(L.N_AUX)
+        rhs(self.t, self.y, int(self.ms[0]), self.P, self.ACT, dy, aux)
+        return aux
+
+    def _energy(self):
+        return float(self._aux()[L.AUX_ENERGY])
+
+    def sample(self):
+        """The current state as one row of output.COLUMNS (angles with whole turns restored)."""
+        row = np.empty(N_COLUMNS)
+        write_sample(row, self.t, self.y, int(self.ms[0]), self._aux())
+        row[COL['phi1']] += self.turns_phi1
+        row[COL['phi3']] += self.turns_phi4
+        row[COL['phi4']] += self.turns_phi4
+        return row
+
+    def energy_balance(self):
+        """Energy ledger [J] since t = 0 and the balance residual (physics.md §4)."""
+        y = self.y
+        energy = self._energy()
+        w_m, w_l, w_d, w_a = y[L.W_MOTOR], y[L.W_LOAD], y[L.W_DAMPING], y[L.W_ACTUATOR]
+        losses = self.ledger[0] - self.energy_injected
+        residual = energy_residual(energy, self.energy0, w_m, w_l, w_d, w_a, losses)
+        scale = abs(w_m) + abs(w_l) + abs(w_d) + abs(w_a) + abs(losses)
+        return {
+            'stored': energy - self.energy0, 'work_motor': w_m, 'work_load': w_l,
+            'dissipated_damping': w_d, 'work_actuator': w_a, 'impact_loss': self.ledger[0],
+            'parameter_changes': self.energy_injected, 'residual': residual,
+            'relative_residual': abs(residual) / scale if scale > 0 else abs(residual),
+        }
+
+
+__all__ = ['Simulator', 'SimulationError', 'RunResult', 'ClutchSwitch', 'KIND_ENGAGE_IMPACT']

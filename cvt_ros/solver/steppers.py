@@ -1,0 +1,157 @@
+"""Explicit Runge-Kutta steppers with dense output, compiled with numba.
+
+Shaped like scipy's ``integrate/_ivp/rk.py``: module-level kernels that take arrays and scratch
+buffers. ``K`` holds the stage derivatives of the last step (row 0 = f(t, y), row 6 = f(t+h, y_new)),
+which is all the dense output needs.
+
+* Dormand–Prince 5(4) (scipy's RK45 tableau): adaptive, local extrapolation, quartic dense output.
+* Classical RK4 with cubic Hermite dense output: the fixed-step real-time mode and the paper's
+  method.
+"""
+import math
+
+import numpy as np
+from cvt_ros.physics.compiled import kernel
+
+from ..physics.dynamics import rhs
+from ..physics.layout import N_AUX, N_DYNAMIC
+
+DOPRI5 = 0
+RK4 = 1
+
+# Dormand–Prince 5(4) (scipy RK45)
+DP_C = np.array([0.0, 1 / 5, 3 / 10, 4 / 5, 8 / 9, 1.0])
+DP_A = np.array([
+    [0.0, 0.0, 0.0, 0.0, 0.0],
+    [1 / 5, 0.0, 0.0, 0.0, 0.0],
+    [3 / 40, 9 / 40, 0.0, 0.0, 0.0],
+    [44 / 45, -56 / 15, 32 / 9, 0.0, 0.0],
+    [19372 / 6561, -25360 / 2187, 64448 / 6561, -212 / 729, 0.0],
+    [9017 / 3168, -355 / 33, 46732 / 5247, 49 / 176, -5103 / 18656],
+])
+DP_B = np.array([35 / 384, 0.0, 500 / 1113, 125 / 192, -2187 / 6784, 11 / 84])
+DP_E = np.array([-71 / 57600, 0.0, 71 / 16695, -71 / 1920, 17253 / 339200, -22 / 525, 1 / 40])
+DP_P = np.array([
+    [1.0, -8048581381 / 2820520608, 8663915743 / 2820520608, -12715105075 / 11282082432],
+    [0.0, 0.0, 0.0, 0.0],
+    [0.0, 131558114200 / 32700410799, -68118460800 / 10900136933, 87487479700 / 32700410799],
+    [0.0, -1754552775 / 470086768, 14199869525 / 1410260304, -10690763975 / 1880347072],
+    [0.0, 127303824393 / 49829197408, -318862633887 / 49829197408,
+     701980252875 / 199316789632],
+    [0.0, -282668133 / 205662961, 2019193451 / 616988883, -1453857185 / 822651844],
+    [0.0, 40617522 / 29380423, -110615467 / 29380423, 69997945 / 29380423],
+])
+DP_ERROR_EXPONENT = -1.0 / 5.0
+SAFETY = 0.9
+MIN_FACTOR = 0.2
+MAX_FACTOR = 10.0
+
+
+@kernel
+def dopri5_step(t, y, h, mode, P, ACT, K, y_new, ytmp, aux, rtol, atol):
+    """One Dormand–Prince step from (t, y) with K[0] = f(t, y) given.
+
+    Writes y_new and K[6] = f(t+h, y_new) (FSAL; ``aux`` then holds its auxiliaries) and returns
+    the RMS error norm scaled by atol + rtol·max(|y|, |y_new|) over the dynamic states.
+    """
+    n = y.shape[0]
+    for s in range(1, 6):
+        for i in range(n):
+            acc = 0.0
+            for j in range(s):
+                acc += DP_A[s, j] * K[j, i]
+            ytmp[i] = y[i] + h * acc
+        rhs(t + DP_C[s] * h, ytmp, mode, P, ACT, K[s], aux)
+    for i in range(n):
+        acc = 0.0
+        for j in range(6):
+            acc += DP_B[j] * K[j, i]
+        y_new[i] = y[i] + h * acc
+    rhs(t + h, y_new, mode, P, ACT, K[6], aux)
+    total = 0.0
+    for i in range(N_DYNAMIC):
+        e = 0.0
+        for j in range(7):
+            e += DP_E[j] * K[j, i]
+        scale = atol + rtol * max(abs(y[i]), abs(y_new[i]))
+        r = h * e / scale
+        total += r * r
+    return math.sqrt(total / N_DYNAMIC)
+
+
+@kernel
+def rk4_step(t, y, h, mode, P, ACT, K, y_new, ytmp, aux):
+    """One classical RK4 step (K[0] = f(t, y) given); writes y_new and K[6] = f(t+h, y_new)."""
+    n = y.shape[0]
+    for i in range(n):
+        ytmp[i] = y[i] + 0.5 * h * K[0, i]
+    rhs(t + 0.5 * h, ytmp, mode, P, ACT, K[1], aux)
+    for i in range(n):
+        ytmp[i] = y[i] + 0.5 * h * K[1, i]
+    rhs(t + 0.5 * h, ytmp, mode, P, ACT, K[2], aux)
+    for i in range(n):
+        ytmp[i] = y[i] + h * K[2, i]
+    rhs(t + h, ytmp, mode, P, ACT, K[3], aux)
+    for i in range(n):
+        y_new[i] = y[i] + h / 6.0 * (K[0, i] + 2.0 * K[1, i] + 2.0 * K[2, i] + K[3, i])
+    rhs(t + h, y_new, mode, P, ACT, K[6], aux)
+    return 0.0
+
+
+@kernel
+def dense_state(method, theta, h, y0, y1, K, out):
+    """State at t0 + θ·h (0 ≤ θ ≤ 1) from the last step's dense output."""
+    n = y0.shape[0]
+    if method == DOPRI5:
+        t2 = theta * theta
+        t3 = t2 * theta
+        t4 = t3 * theta
+        for i in range(n):
+            q0 = 0.0
+            q1 = 0.0
+            q2 = 0.0
+            q3 = 0.0
+            for s in range(7):
+                k = K[s, i]
+                q0 += k * DP_P[s, 0]
+                q1 += k * DP_P[s, 1]
+                q2 += k * DP_P[s, 2]
+                q3 += k * DP_P[s, 3]
+            out[i] = y0[i] + h * (q0 * theta + q1 * t2 + q2 * t3 + q3 * t4)
+    else:
+        t2 = theta * theta
+        t3 = t2 * theta
+        h00 = 2.0 * t3 - 3.0 * t2 + 1.0
+        h10 = t3 - 2.0 * t2 + theta
+        h01 = -2.0 * t3 + 3.0 * t2
+        h11 = t3 - t2
+        for i in range(n):
+            out[i] = h00 * y0[i] + h10 * h * K[0, i] + h01 * y1[i] + h11 * h * K[6, i]
+
+
+@kernel
+def initial_step(t, y, mode, P, ACT, f0, rtol, atol, ytmp, ftmp):
+    """Hairer–Nørsett–Wanner starting step (as scipy's ``select_initial_step``), order 5."""
+    aux = np.empty(N_AUX)
+    d0 = 0.0
+    d1 = 0.0
+    for i in range(N_DYNAMIC):
+        scale = atol + abs(y[i]) * rtol
+        d0 += (y[i] / scale) ** 2
+        d1 += (f0[i] / scale) ** 2
+    d0 = math.sqrt(d0 / N_DYNAMIC)
+    d1 = math.sqrt(d1 / N_DYNAMIC)
+    h0 = 1e-6 if (d0 < 1e-5 or d1 < 1e-5) else 0.01 * d0 / d1
+    for i in range(y.shape[0]):
+        ytmp[i] = y[i] + h0 * f0[i]
+    rhs(t + h0, ytmp, mode, P, ACT, ftmp, aux)
+    d2 = 0.0
+    for i in range(N_DYNAMIC):
+        scale = atol + abs(y[i]) * rtol
+        d2 += ((ftmp[i] - f0[i]) / scale) ** 2
+    d2 = math.sqrt(d2 / N_DYNAMIC) / h0
+    if d1 <= 1e-15 and d2 <= 1e-15:
+        h1 = max(1e-6, h0 * 1e-3)
+    else:
+        h1 = (0.01 / max(d1, d2)) ** 0.2
+    return min(100.0 * h0, h1)

@@ -1,0 +1,31 @@
+"""ament_python package cvt_ros (also pip-installable for venv use)."""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = 'cvt_ros'
+
+setup(
+    name=package_name,
+    version='0.1.0',
+    packages=find_packages(exclude=['test']),
+    data_files=[
+        ('share/ament_index/resource_index/packages', ['resource/' + package_name]),
+        ('share/' + package_name, ['package.xml']),
+        ('share/' + package_name + '/config/scenes', glob('config/scenes/*.yaml')),
+        ('share/' + package_name + '/launch', glob('launch/*.py')),
+    ],
+    package_data={package_name: ['scenes/*.yaml']},
+    install_requires=['setuptools', 'numpy', 'scipy', 'PyYAML'],
+    zip_safe=True,
+    maintainer='cvt_ros developers',
+    maintainer_email='dev@cvt-ros.invalid',
+    description='Real-time virtual device of a mechanical pulse CVT for ROS 2',
+    license='Apache-2.0',
+    tests_require=['pytest'],
+    entry_points={
+        'console_scripts': [
+            'cvt-sim = cvt_ros.tools.cli:main',
+        ],
+    },
+)
