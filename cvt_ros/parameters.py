@@ -4,6 +4,7 @@ knows parameter names; the scene loader, the CLI's ``--set``, the node's declare
 
 Defaults are the paper's Fig. 2/3 scene (physics.md §6).
 """
+import difflib
 import math
 from dataclasses import dataclass
 
@@ -33,9 +34,13 @@ class ParameterSpec:
     choices: tuple = ()         # allowed strings (or ints) when not empty
     allow_inf: bool = False     # +inf is a meaningful value (rigid shaft)
 
-    @property
-    def kind(self):
-        return type(self.default)
+    def range_text(self):
+        if self.choices:
+            return f"one of {list(self.choices)}"
+        if isinstance(self.default, str):
+            return ''
+        high = 'inf' if math.isinf(self.high) else f"{self.high:g}"
+        return f"{'(' if self.low_open else '['}{self.low:g}, {high}]"
 
     def check(self, value):
         """Coerce ``value`` to this parameter's type or raise ParameterError with the reason."""
@@ -145,9 +150,10 @@ def validate(values):
     out = defaults()
     for name, value in values.items():
         if name not in SPECS:
-            close = [n for n in SPECS if n.split('.')[-1] == name.split('.')[-1]]
+            close = difflib.get_close_matches(name, list(SPECS), n=1)
             hint = f" (did you mean {close[0]}?)" if close else ''
-            raise ParameterError(name, f"unknown parameter{hint}; valid: {', '.join(sorted(SPECS))}")
+            raise ParameterError(
+                name, f"unknown parameter{hint}; valid: {', '.join(sorted(SPECS))}")
         out[name] = SPECS[name].check(value)
     try:
         check_crank_length(out['linkage.crank_length'], out['linkage.rocker_length'],

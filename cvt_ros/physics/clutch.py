@@ -19,13 +19,27 @@ from cvt_ros.physics.compiled import kernel
 
 from .dynamics import rhs
 from .layout import (
-    AUX_CLUTCH_TORQUE, AUX_ROCKER_SPEED, AUX_SLIP, AUX_SLIP_RATE, DISENGAGED, ENGAGED, OMEGA3,
-    OMEGA4, P_RELEASE, P_RIGID, P_TORQUE_SCALE, RELEASE_TWIST, TWIST,
+    AUX_CLUTCH_TORQUE,
+    AUX_ROCKER_ACCEL,
+    AUX_ROCKER_SPEED,
+    AUX_SLIP,
+    AUX_SLIP_RATE,
+    DISENGAGED,
+    ENGAGED,
+    OMEGA3,
+    OMEGA4,
+    P_RELEASE,
+    P_RIGID,
+    P_TORQUE_SCALE,
+    RELEASE_TWIST,
+    TWIST,
 )
 
 SLIP_TOLERANCE = 1e-10     # relative to the member speeds
 TORQUE_TOLERANCE = 1e-10   # relative to the scene's torque scale
 TWIST_TOLERANCE = 1e-13    # [rad]
+SLIP_RATE_TOLERANCE = 1e-10  # relative to the member accelerations
+CONTACT_PROBE_TIME = 1e-6  # [s] look-ahead for s'' at a higher-order contact
 
 KIND_RELEASE = 0
 KIND_ENGAGE = 1
@@ -67,3 +81,21 @@ def free_slip_rate(t, y, P, ACT, dy, aux):
     """s'_free: the slip rate the DISENGAGED dynamics would give at this state [rad/s²]."""
     rhs(t, y, DISENGAGED, P, ACT, dy, aux)
     return aux[AUX_SLIP_RATE]
+
+
+@kernel
+def clutch_engages(t, y, P, ACT, dy, aux, ytmp):
+    """Complementarity at s = 0: does the free (disengaged) motion drive the slip negative?
+
+    Decided by s'_free; when s'_free vanishes (a higher-order contact, e.g. a = 0 with the shaft
+    untwisted at t = 0) by s''_free, taken as a difference of s'_free along the free motion.
+    """
+    rate = free_slip_rate(t, y, P, ACT, dy, aux)
+    tol = SLIP_RATE_TOLERANCE * (1.0 + abs(aux[AUX_ROCKER_ACCEL]) + abs(dy[OMEGA3]))
+    if rate < -tol:
+        return True
+    if rate > tol:
+        return False
+    for i in range(y.shape[0]):
+        ytmp[i] = y[i] + CONTACT_PROBE_TIME * dy[i]
+    return free_slip_rate(t + CONTACT_PROBE_TIME, ytmp, P, ACT, dy, aux) - rate < 0.0

@@ -1,20 +1,33 @@
 """Motor and load torques (physics.md §5) and the crank-length actuator.
 
 The actuator moves the crank length a(t) towards its command with a trapezoidal velocity profile
-(rate limit ``crank_rate_limit`` [m/s], acceleration limit ``crank_accel_limit`` [m/s²]). A pure rate
-limit would make a'' impulsive and the rocker speed v = u·ω1 + g_a·a' jump while engaged; the
-acceleration limit keeps v continuous. The profile is planned in closed form when a command
+(rate limit ``crank_rate_limit`` [m/s], acceleration limit ``crank_accel_limit`` [m/s²]).
+A pure rate limit would make a'' impulsive and the rocker speed v = u·ω1 + g_a·a' jump while
+engaged; the acceleration limit keeps v continuous. The profile is planned in closed form when a command
 arrives, as at most N_ACT_SEGMENTS rows (t_start, a, a', a''); the solver stops its steps at the
 row boundaries, where a'' jumps.
 """
 import math
 
 import numpy as np
+
 from cvt_ros.physics.compiled import kernel
 
 from .layout import (
-    ACT_A, ACT_ACC, ACT_T, ACT_V, MOTOR_CONSTANT_TORQUE, MOTOR_INDUCTION, N_ACT_SEGMENTS,
-    P_LOAD_QUADRATIC, P_LOAD_TORQUE, P_LOAD_VISCOUS, P_MK, P_MOTOR_MODEL, P_MOTOR_TORQUE, P_SK,
+    ACT_A,
+    ACT_ACC,
+    ACT_T,
+    ACT_V,
+    MOTOR_CONSTANT_TORQUE,
+    MOTOR_INDUCTION,
+    N_ACT_SEGMENTS,
+    P_LOAD_QUADRATIC,
+    P_LOAD_TORQUE,
+    P_LOAD_VISCOUS,
+    P_MK,
+    P_MOTOR_MODEL,
+    P_MOTOR_TORQUE,
+    P_SK,
     P_W0,
 )
 

@@ -26,11 +26,46 @@ from cvt_ros.physics.compiled import kernel
 
 from .drives import crank_actuator, load_torque, motor_torque
 from .layout import (
-    AUX_ACTUATOR_POWER, AUX_CLUTCH_TORQUE, AUX_CONSTRAINT, AUX_CRANK_LENGTH, AUX_ENERGY,
-    AUX_LOAD_TORQUE, AUX_MOTOR_TORQUE, AUX_ROCKER_ACCEL, AUX_ROCKER_SPEED, AUX_SHAFT_TORQUE,
-    AUX_SLIP, AUX_SLIP_RATE, DISENGAGED, ENGAGED, FORMULATION_PAPER, MOTOR_CONSTANT_SPEED, OMEGA1,
-    OMEGA2, OMEGA3, OMEGA4, P_B, P_BAUMGARTE, P_C, P_D, P_FORMULATION, P_H, P_J1, P_J2, P_J3, P_J4,
-    P_KD, P_MOTOR_MODEL, P_RIGID, P_SIGMA, PHI1, PHI2, PHI4, TWIST, W_ACTUATOR, W_DAMPING, W_LOAD,
+    AUX_ACTUATOR_POWER,
+    AUX_CLUTCH_TORQUE,
+    AUX_CONSTRAINT,
+    AUX_CRANK_LENGTH,
+    AUX_ENERGY,
+    AUX_LOAD_TORQUE,
+    AUX_MOTOR_TORQUE,
+    AUX_ROCKER_ACCEL,
+    AUX_ROCKER_SPEED,
+    AUX_SHAFT_TORQUE,
+    AUX_SLIP,
+    AUX_SLIP_RATE,
+    ENGAGED,
+    FORMULATION_PAPER,
+    MOTOR_CONSTANT_SPEED,
+    OMEGA1,
+    OMEGA2,
+    OMEGA3,
+    OMEGA4,
+    P_B,
+    P_BAUMGARTE,
+    P_C,
+    P_D,
+    P_FORMULATION,
+    P_H,
+    P_J1,
+    P_J2,
+    P_J3,
+    P_J4,
+    P_KD,
+    P_MOTOR_MODEL,
+    P_RIGID,
+    P_SIGMA,
+    PHI1,
+    PHI2,
+    PHI4,
+    TWIST,
+    W_ACTUATOR,
+    W_DAMPING,
+    W_LOAD,
     W_MOTOR,
 )
 from .linkage import constraint_partials, kinematics, rocker_angle
@@ -100,7 +135,8 @@ def rhs(t, y, mode, P, ACT, dy, aux):
         fdot = f1 * w1 + f2 * v + fa * ad
         alpha = P[P_BAUMGARTE]
         rc = -(f11 * w1 * w1 + 2.0 * f12 * w1 * v + f22 * v * v + 2.0 * f1a * w1 * ad
-               + 2.0 * f2a * v * ad + faa * ad * ad) - fa * add - 2.0 * alpha * fdot - alpha * alpha * f
+               + 2.0 * f2a * v * ad + faa * ad * ad) - fa * add
+        rc -= 2.0 * alpha * fdot + alpha * alpha * f  # Baumgarte stabilization
         if speed_source:
             dw1 = 0.0
             dv = rc / f2

@@ -26,8 +26,8 @@ class GrashofError(ValueError):
 def grashof_bound(rocker_length, coupler_length, pivot_distance):
     """Largest crank length [m] (exclusive) for which the crank still turns fully.
 
-    Grashof with the crank shortest: a + max(b, d, h) ≤ (sum of the other two), and a ≤ min(b, d, h).
-    At equality the linkage folds flat (a toggle with A2 = 0, u = ∞), so the bound itself is refused.
+    Grashof with the crank shortest: a + max(b, d, h) ≤ (sum of the other two), a ≤ min(b, d, h).
+    At equality the linkage folds flat (a toggle with A2 = 0, u = ∞): the bound itself is refused.
     """
     b, d, h = rocker_length, coupler_length, pivot_distance
     return min(b, d, h, b + d + h - 2.0 * max(b, d, h))
@@ -46,8 +46,8 @@ def check_crank_length(crank_length, rocker_length, coupler_length, pivot_distan
     if a < 0.0 or a >= bound:
         raise GrashofError(
             f"crank length {a:g} m is outside [0, {bound:g}) m: with b={rocker_length}, "
-            f"d={coupler_length}, h={pivot_distance} m the crank must stay shorter than the Grashof "
-            f"bound a + max(b, d, h) < sum of the other two", a, bound)
+            f"d={coupler_length}, h={pivot_distance} m the crank must stay shorter than the "
+            f"Grashof bound a + max(b, d, h) < sum of the other two", a, bound)
     return bound
 
 

@@ -11,19 +11,34 @@ The loop never leaves compiled code between events: that, not a faster RHS, is w
 import math
 
 import numpy as np
+
 from cvt_ros.physics.compiled import kernel
 
 from ..physics.clutch import (
-    KIND_ENGAGE, KIND_ENGAGE_IMPACT, KIND_GRAZE, KIND_RELEASE, clutch_guard, free_slip_rate,
-    guard_tolerance, uses_twist_release,
+    KIND_ENGAGE,
+    KIND_ENGAGE_IMPACT,
+    KIND_GRAZE,
+    KIND_RELEASE,
+    clutch_engages,
+    clutch_guard,
+    free_slip_rate,
+    guard_tolerance,
+    uses_twist_release,
 )
 from ..physics.drives import next_actuator_break
 from ..physics.dynamics import engage_with_impact, finite_state, project, rhs
 from ..physics.layout import AUX_SLIP, DISENGAGED, ENGAGED, N_AUX
 from .output import write_sample
 from .steppers import (
-    DOPRI5, DP_ERROR_EXPONENT, MAX_FACTOR, MIN_FACTOR, SAFETY, dense_state, dopri5_step,
-    initial_step, rk4_step,
+    DOPRI5,
+    DP_ERROR_EXPONENT,
+    MAX_FACTOR,
+    MIN_FACTOR,
+    SAFETY,
+    dense_state,
+    dopri5_step,
+    initial_step,
+    rk4_step,
 )
 
 # settings vector S
@@ -108,7 +123,7 @@ def _hermite_minimum(g0, d0, g1, d1):
 @kernel
 def _locate(method, t, h, y0, y1, K, mode, P, ACT, lo, hi, glo, ghi, tol_theta,
             ytmp, dytmp, auxtmp):
-    """Illinois' regula falsi on g(θ) over [lo, hi] with g(lo) > 0 > g(hi); returns θ past the root."""
+    """Illinois' regula falsi on g(θ), g(lo) > 0 > g(hi); returns θ just past the root."""
     side = 0
     for it in range(200):
         if hi - lo <= tol_theta:
@@ -169,7 +184,6 @@ def advance(t, t_end, y, ms, P, ACT, S, h_io, grid, out, events, counters, ledge
     K = np.empty((7, n))
     y_new = np.empty(n)
     ytmp = np.empty(n)
-    ytmp2 = np.empty(n)
     dytmp = np.empty(n)
     aux0 = np.empty(N_AUX)
     aux1 = np.empty(N_AUX)
@@ -293,7 +307,7 @@ def advance(t, t_end, y, ms, P, ACT, S, h_io, grid, out, events, counters, ledge
                 ledger[0] += engage_with_impact(t, y, P, ACT)
                 kind = KIND_ENGAGE_IMPACT
                 mode = ENGAGED
-            elif free_slip_rate(t, y, P, ACT, dytmp, auxtmp) < 0.0:
+            elif clutch_engages(t, y, P, ACT, dytmp, auxtmp, ytmp):
                 kind = KIND_ENGAGE
                 mode = ENGAGED
         project(t, y, mode, P, ACT)

@@ -1,8 +1,8 @@
 """Explicit Runge-Kutta steppers with dense output, compiled with numba.
 
 Shaped like scipy's ``integrate/_ivp/rk.py``: module-level kernels that take arrays and scratch
-buffers. ``K`` holds the stage derivatives of the last step (row 0 = f(t, y), row 6 = f(t+h, y_new)),
-which is all the dense output needs.
+buffers. ``K`` holds the stage derivatives of the last step (row 0 = f(t, y),
+row 6 = f(t+h, y_new)), which is all the dense output needs.
 
 * Dormand–Prince 5(4) (scipy's RK45 tableau): adaptive, local extrapolation, quartic dense output.
 * Classical RK4 with cubic Hermite dense output: the fixed-step real-time mode and the paper's
@@ -11,6 +11,7 @@ which is all the dense output needs.
 import math
 
 import numpy as np
+
 from cvt_ros.physics.compiled import kernel
 
 from ..physics.dynamics import rhs

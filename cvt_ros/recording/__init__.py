@@ -1,0 +1,56 @@
+"""rosbag2-compatible (ROS 2 Jazzy) MCAP recording: write, read tolerantly, recover after crashes.
+
+Importing this package does not import rclpy; rclpy is loaded only when a message object is
+serialized or deserialized.
+
+Typical use (in a node)::
+
+    writer = BagWriter('run.mcap')
+    writer.add_topic('/joint_states', 'sensor_msgs/msg/JointState', qos=publisher.qos_profile)
+    writer.write('/joint_states', msg, node.get_clock().now().nanoseconds)
+    writer.finish()
+"""
+
+from .definitions import (
+    MessageDefinition,
+    get_message_definition,
+    message_definition_text,
+    normalize_type_name,
+    type_description_hash,
+    type_name_of,
+)
+from .errors import (
+    LogTimeError,
+    MessageDefinitionError,
+    RecordingError,
+    RecordingReadError,
+    RecordingReadWarning,
+)
+from .qos import DURATION_INFINITE, offered_qos_profiles_yaml, qos_profile_dict
+from .reader import BagMessage, BagSummary, TopicSummary, read_messages, recover, summary
+from .writer import DEFAULT_CHUNK_SIZE, BagWriter
+
+__all__ = [
+    'BagMessage',
+    'BagSummary',
+    'BagWriter',
+    'DEFAULT_CHUNK_SIZE',
+    'DURATION_INFINITE',
+    'LogTimeError',
+    'MessageDefinition',
+    'MessageDefinitionError',
+    'RecordingError',
+    'RecordingReadError',
+    'RecordingReadWarning',
+    'TopicSummary',
+    'get_message_definition',
+    'message_definition_text',
+    'normalize_type_name',
+    'offered_qos_profiles_yaml',
+    'qos_profile_dict',
+    'read_messages',
+    'recover',
+    'summary',
+    'type_description_hash',
+    'type_name_of',
+]

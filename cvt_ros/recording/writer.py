@@ -1,0 +1,480 @@
+"""Crash-tolerant rosbag2-compatible MCAP writer.
+
+The file is what ``ros2 bag record -s mcap`` (Jazzy) writes: profile ``ros2``, one ``ros2msg``
+schema per type, ``cdr`` channels carrying ``offered_qos_profiles`` and ``topic_type_hash``
+metadata, a summary (chunk + message indexes, statistics) and a ``rosbag2`` metadata record whose
+``serialized_metadata`` is the bag metadata YAML. ``ros2 bag play/info file.mcap`` accept it.
+
+Crash safety: messages are grouped into small chunks (64 KiB by default) and every chunk is
+closed and handed to the OS at least every ``flush_interval`` seconds of wall time (a background
+thread covers idle periods), so after SIGKILL everything written more than ``flush_interval``
+earlier sits in complete, CRC-checked chunks; :func:`cvt_ros.recording.recover` turns such a file
+into a finished one. Data reaches the OS, not necessarily the platter: ``finish()`` fsyncs.
+
+Signals: :meth:`BagWriter.finish` may be called from a signal handler (SIGINT/SIGTERM) while the
+main thread is inside :meth:`BagWriter.write`. The parts that modify the MCAP writer run with the
+usual termination signals blocked, so a handler (or a KeyboardInterrupt) never runs half-way
+through them.
+
+Errors: a bad path raises :class:`RecordingError` from the constructor. An I/O error later
+(disk full...) raises :class:`RecordingError` once, from the call that hit it (or, if the
+background flush hit it, from the next call); the writer is then *failed*: further calls return
+without raising and :attr:`BagWriter.failed` / :attr:`BagWriter.error` tell what happened.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import os
+import signal
+import threading
+import time
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from . import _yaml
+from .definitions import get_message_definition, normalize_type_name, type_name_of
+from .errors import LogTimeError, MessageDefinitionError, RecordingError
+from .qos import offered_qos_profiles_yaml
+
+__all__ = ['BagWriter', 'DEFAULT_CHUNK_SIZE', 'ROS_DISTRO', 'METADATA_VERSION']
+
+#: Default chunk size in bytes: small, so little is lost in a crash (rosbag2 uses 768 KiB).
+DEFAULT_CHUNK_SIZE = 64 * 1024
+#: rosbag2 bag metadata version written by Jazzy.
+METADATA_VERSION = 9
+#: ``ros_distro`` written into the bag metadata.
+ROS_DISTRO = 'jazzy'
+
+_OPEN, _CLOSED, _FAILED = 'open', 'closed', 'failed'
+_RECORD_OVERHEAD = 31  # opcode + length + message header bytes (9 + 22)
+# Signals whose Python handlers must not run in the middle of an MCAP update.
+_DEFERRED_SIGNALS = frozenset(
+    getattr(signal, name) for name in
+    ('SIGINT', 'SIGTERM', 'SIGHUP', 'SIGQUIT', 'SIGUSR1', 'SIGUSR2', 'SIGALRM')
+    if hasattr(signal, name))
+
+
+@contextlib.contextmanager
+def _signals_deferred() -> Iterator[None]:
+    """Block termination signals in the main thread for the duration (no-op elsewhere)."""
+    if not hasattr(signal, 'pthread_sigmask') or \
+            threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, _DEFERRED_SIGNALS)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
+@dataclass
+class _Topic:
+    name: str
+    type_name: str
+    channel_id: int
+    serialization_format: str
+    qos_yaml: str
+    type_hash: str
+    count: int = 0
+
+
+class BagWriter:
+    """Write a single rosbag2-compatible ``.mcap`` file.
+
+    ``path``: the ``.mcap`` file to create (its directory must exist). It must not exist unless
+    ``overwrite=True`` (like ``ros2 bag record``, we refuse to clobber a recording).
+    ``chunk_size``: bytes of messages per chunk; smaller loses less on a crash.
+    ``flush_interval``: seconds; data is on disk (in complete chunks) at most this long after
+    :meth:`write` returned. ``None`` disables time-based flushing (chunks close by size only).
+    ``library``: free-form MCAP header library string.
+    ``clamp_log_time``: if true, a log time earlier than the previous one is raised to it instead
+    of raising :class:`LogTimeError`.
+    ``custom_data``: string map stored as ``custom_data`` in the bag metadata.
+
+    Log times are int64 nanoseconds (ROS time of reception, usually ``node.get_clock().now()``)
+    and must be non-decreasing: rosbag2's player and our crash recovery rely on file order being
+    time order. Thread-safe; usable as a context manager (``finish()`` on exit).
+    """
+
+    def __init__(self, path: str | os.PathLike[str], *, chunk_size: int = DEFAULT_CHUNK_SIZE,
+                 flush_interval: float | None = 1.0, library: str = 'cvt_ros',
+                 overwrite: bool = False, clamp_log_time: bool = False,
+                 custom_data: Mapping[str, str] | None = None):
+        from mcap.writer import CompressionType, Writer
+
+        if int(chunk_size) <= 0:
+            raise ValueError(f'chunk_size must be positive, got {chunk_size!r}')
+        if flush_interval is not None and not flush_interval > 0:
+            raise ValueError(f'flush_interval must be positive or None, got {flush_interval!r}')
+        self._path = os.fspath(path)
+        self._chunk_size = int(chunk_size)
+        self._flush_interval = flush_interval
+        # Flush when the oldest unflushed data is this old; the thread polls at interval / 4,
+        # so data is flushed at most flush_interval after it was written.
+        self._flush_after = None if flush_interval is None else 0.75 * flush_interval
+        self._clamp = bool(clamp_log_time)
+        self._custom_data = {str(k): str(v) for k, v in (custom_data or {}).items()}
+        self._lock = threading.RLock()
+        self._state = _OPEN
+        self._error: RecordingError | None = None
+        self._error_reported = False
+        self._topics: dict[str, _Topic] = {}
+        self._schema_ids: dict[tuple[str, str, bytes], int] = {}
+        self._class_types: dict[type, str] = {}
+        self._pending: list[tuple[_Topic, int, int, bytes]] = []
+        self._pending_bytes = 0
+        self._dirty_since: float | None = None
+        self._last_log_time = 0
+        self._message_count = 0
+        self._start_ns: int | None = None
+        self._end_ns = 0
+        try:
+            self._file = open(self._path, 'wb' if overwrite else 'xb')
+        except FileExistsError as exc:
+            raise RecordingError(f'cannot create recording {self._path}: file exists '
+                                 '(pass overwrite=True to replace it)') from exc
+        except OSError as exc:
+            raise RecordingError(
+                f'cannot create recording {self._path}: {exc.strerror or exc}') from exc
+        try:
+            self._mcap = Writer(self._file, chunk_size=self._chunk_size,
+                                compression=CompressionType.NONE)
+            self._mcap.start(profile='ros2', library=library)
+            self._file.flush()  # surface an unwritable target (e.g. a full disk) right away
+        except OSError as exc:
+            self._state = _FAILED
+            self._close_quietly()
+            raise RecordingError(
+                f'cannot write recording {self._path}: {exc.strerror or exc}') from exc
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        if flush_interval is not None:
+            self._thread = threading.Thread(target=self._flush_loop, name='BagWriter-flush',
+                                            daemon=True)
+            self._thread.start()
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def path(self) -> str:
+        """The file being written."""
+        return self._path
+
+    @property
+    def failed(self) -> bool:
+        """True once an I/O error stopped the recording (see :attr:`error`)."""
+        return self._state == _FAILED
+
+    @property
+    def error(self) -> RecordingError | None:
+        """The error that stopped the recording, if any."""
+        return self._error
+
+    @property
+    def closed(self) -> bool:
+        """True after :meth:`finish` (or after a failure)."""
+        return self._state != _OPEN
+
+    @property
+    def message_count(self) -> int:
+        """Messages accepted so far (written or waiting in the current chunk)."""
+        return self._message_count + len(self._pending)
+
+    @property
+    def topics(self) -> dict[str, str]:
+        """Registered topics -> type names."""
+        return {t.name: t.type_name for t in self._topics.values()}
+
+    # ------------------------------------------------------------------ public API
+    def add_topic(self, topic: str, type_name: str | type, qos: Any = None) -> int:
+        """Register ``topic`` with message type ``type_name`` and return its channel id.
+
+        ``type_name`` is ``'pkg/msg/Type'`` (or a message class); ``qos`` is the publisher's
+        QoS (rclpy ``QoSProfile``, dict or list of them; ``None`` = rclpy default, see
+        :mod:`cvt_ros.recording.qos`). The schema is stored once per type. Registering the same
+        topic again with the same type returns the existing id. Raises
+        :class:`MessageDefinitionError` if the type's definition is not installed. On a failed
+        or closed writer nothing is registered and 0 is returned.
+        """
+        if isinstance(type_name, type):
+            type_name = type_name_of(type_name)
+        full_type = normalize_type_name(type_name)
+        existing = self._topics.get(topic)
+        if existing is not None:
+            if existing.type_name != full_type:
+                raise ValueError(f'topic {topic!r} already has type {existing.type_name}, '
+                                 f'not {full_type}')
+            return existing.channel_id
+        if not isinstance(topic, str) or not topic:
+            raise ValueError(f'invalid topic name {topic!r}')
+        definition = get_message_definition(full_type)
+        qos_yaml = offered_qos_profiles_yaml(qos)
+        return self._add_channel(
+            topic, full_type, definition.encoding, definition.text.encode('utf-8'), 'cdr',
+            {'offered_qos_profiles': qos_yaml, 'topic_type_hash': definition.type_hash})
+
+    def write(self, topic: str, message: Any, log_time_ns: int,
+              publish_time_ns: int | None = None) -> bool:
+        """Append one message; return True if it was accepted.
+
+        ``message`` is an rclpy message (serialized with ``rclpy.serialization``) or already
+        serialized CDR ``bytes``. ``log_time_ns``: reception time, int64 ns, non-decreasing.
+        ``publish_time_ns`` defaults to ``log_time_ns``. Returns False without raising when the
+        writer is closed or failed (the first I/O error is raised as :class:`RecordingError`).
+        """
+        if self._state != _OPEN:
+            self._raise_unreported()
+            return False
+        entry = self._topics.get(topic)
+        if entry is None:
+            raise ValueError(f'unknown topic {topic!r}; call add_topic() first')
+        data = self._serialize(entry, message)
+        log = int(log_time_ns)
+        publish = log if publish_time_ns is None else int(publish_time_ns)
+        if log < 0 or publish < 0:
+            raise LogTimeError(f'negative time on {topic!r}: log {log}, publish {publish} ns')
+        with self._lock:
+            if self._state != _OPEN:
+                return False
+            if log < self._last_log_time:
+                if not self._clamp:
+                    raise LogTimeError(
+                        f'log time went backwards on {topic!r}: {log} ns < previous '
+                        f'{self._last_log_time} ns (log times must be non-decreasing; '
+                        'use clamp_log_time=True to clamp)')
+                log = self._last_log_time
+            now = time.monotonic()
+            self._pending.append((entry, log, publish, data))  # atomic w.r.t. signal handlers
+            self._last_log_time = log
+            self._pending_bytes += len(data) + _RECORD_OVERHEAD
+            if self._dirty_since is None:
+                self._dirty_since = now
+            flush_due = self._flush_after is not None and now - self._dirty_since >= \
+                self._flush_after
+            if flush_due or self._pending_bytes >= self._chunk_size:
+                self._drain(flush=flush_due)
+        return True
+
+    def flush(self) -> None:
+        """Close the current chunk and hand everything written so far to the OS."""
+        with self._lock:
+            if self._state != _OPEN:
+                self._raise_unreported()
+                return
+            self._drain(flush=True)
+
+    def finish(self) -> None:
+        """Write the summary and the rosbag2 metadata, fsync and close. Idempotent.
+
+        Safe to call from a signal handler. On a failed writer it only releases the file (and
+        raises the failure if it has not been reported yet).
+        """
+        with self._lock, _signals_deferred():
+            if self._state == _CLOSED:
+                return
+            if self._state == _FAILED:
+                self._close_quietly()
+                self._stop.set()
+                self._raise_unreported()
+                return
+            try:
+                self._drain(flush=False)
+                if self._state != _OPEN:
+                    return
+                self._mcap.add_metadata(
+                    'rosbag2', {'serialized_metadata': self.bag_metadata_yaml()})
+                self._mcap.finish()
+                self._file.flush()
+                try:
+                    os.fsync(self._file.fileno())
+                except OSError as exc:
+                    if exc.errno not in (errno.EINVAL, errno.EOPNOTSUPP):  # not a regular file
+                        raise
+                self._file.close()
+            except (OSError, ValueError) as exc:
+                self._fail(exc, report=True)
+            self._state = _CLOSED
+            self._stop.set()
+
+    def close(self) -> None:
+        """Alias of :meth:`finish`."""
+        self.finish()
+
+    def __enter__(self) -> BagWriter:
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.finish()
+
+    def bag_metadata(self) -> dict[str, Any]:
+        """The rosbag2 bag metadata (version 9) of what was written so far, as a dict."""
+        base = os.path.basename(self._path)
+        start = self._start_ns if self._start_ns is not None else 0
+        duration = self._end_ns - start if self._start_ns is not None else 0
+        count = self._message_count
+        return {
+            'version': METADATA_VERSION,
+            'storage_identifier': 'mcap',
+            'duration': {'nanoseconds': duration},
+            'starting_time': {'nanoseconds_since_epoch': start},
+            'message_count': count,
+            'topics_with_message_count': [
+                {
+                    'topic_metadata': {
+                        'name': t.name,
+                        'type': t.type_name,
+                        'serialization_format': t.serialization_format,
+                        'offered_qos_profiles': _yaml.RawBlock(t.qos_yaml),
+                        'type_description_hash': t.type_hash,
+                    },
+                    'message_count': t.count,
+                }
+                for t in self._topics.values()
+            ],
+            'compression_format': '',
+            'compression_mode': '',
+            'relative_file_paths': [base],
+            'files': [{
+                'path': base,
+                'starting_time': {'nanoseconds_since_epoch': start},
+                'duration': {'nanoseconds': duration},
+                'message_count': count,
+            }],
+            'custom_data': dict(self._custom_data) or None,
+            'ros_distro': ROS_DISTRO,
+        }
+
+    def bag_metadata_yaml(self) -> str:
+        """:meth:`bag_metadata` as rosbag2 serialises it (yaml-cpp ``Dump``, no root key)."""
+        return _yaml.dump(self.bag_metadata())
+
+    # ------------------------------------------------------------------ internals
+    def _serialize(self, entry: _Topic, message: Any) -> bytes:
+        if isinstance(message, (bytes, bytearray, memoryview)):
+            return bytes(message)
+        cls = type(message)
+        msg_type = self._class_types.get(cls)
+        if msg_type is None:
+            try:
+                msg_type = type_name_of(cls)
+            except MessageDefinitionError as exc:
+                raise TypeError(f'cannot record {cls!r} on {entry.name!r}: pass an rclpy '
+                                'message or serialized bytes') from exc
+            self._class_types[cls] = msg_type
+        if msg_type != entry.type_name:
+            raise TypeError(f'topic {entry.name!r} has type {entry.type_name}, got {msg_type}')
+        from rclpy.serialization import serialize_message
+
+        return serialize_message(message)
+
+    def _add_channel(self, topic: str, type_name: str, schema_encoding: str, schema_data: bytes,
+                     message_encoding: str, metadata: Mapping[str, str]) -> int:
+        """Register schema (deduplicated) and channel; used by add_topic and recover."""
+        with self._lock, _signals_deferred():
+            if self._state != _OPEN:
+                self._raise_unreported()
+                return 0
+            existing = self._topics.get(topic)
+            if existing is not None and existing.type_name == type_name:
+                return existing.channel_id
+            try:
+                key = (type_name, schema_encoding, schema_data)
+                schema_id = self._schema_ids.get(key)
+                if schema_id is None:
+                    schema_id = self._mcap.register_schema(type_name, schema_encoding,
+                                                           schema_data)
+                    self._schema_ids[key] = schema_id
+                channel_id = self._mcap.register_channel(topic, message_encoding, schema_id,
+                                                         dict(metadata))
+            except (OSError, ValueError) as exc:
+                self._fail(exc, report=True)
+                return 0
+            self._topics[topic] = _Topic(
+                topic, type_name, channel_id, message_encoding,
+                metadata.get('offered_qos_profiles', ''), metadata.get('topic_type_hash', ''))
+            return channel_id
+
+    def _write_raw(self, topic: str, data: bytes, log_time_ns: int, publish_time_ns: int) -> None:
+        """Append without the monotonic check (recovery copies times as found)."""
+        with self._lock:
+            if self._state != _OPEN:
+                return
+            self._pending.append((self._topics[topic], log_time_ns, publish_time_ns, data))
+            self._pending_bytes += len(data) + _RECORD_OVERHEAD
+            if self._pending_bytes >= self._chunk_size:
+                self._drain(flush=False)
+
+    def _add_metadata_raw(self, name: str, data: Mapping[str, str]) -> None:
+        with self._lock, _signals_deferred():
+            if self._state != _OPEN:
+                return
+            try:
+                self._mcap.add_metadata(name, dict(data))
+            except (OSError, ValueError) as exc:
+                self._fail(exc, report=True)
+
+    def _drain(self, *, flush: bool, report: bool = True) -> None:
+        """Move pending messages into the MCAP writer; optionally close the chunk and flush.
+
+        Runs with the lock held and termination signals blocked, so the MCAP writer's state is
+        never left half-updated.
+        """
+        with _signals_deferred():
+            if self._state != _OPEN:
+                return
+            pending, self._pending = self._pending, []
+            self._pending_bytes = 0
+            try:
+                for entry, log, publish, data in pending:
+                    entry.count += 1
+                    self._message_count += 1
+                    if self._start_ns is None or log < self._start_ns:
+                        self._start_ns = log
+                    if log > self._end_ns:
+                        self._end_ns = log
+                    self._mcap.add_message(entry.channel_id, log, data, publish,
+                                           sequence=entry.count & 0xFFFFFFFF)
+                if flush:
+                    self._mcap.flush()
+                    self._dirty_since = None
+            except (OSError, ValueError) as exc:
+                self._fail(exc, report=report)
+
+    def _flush_loop(self) -> None:
+        assert self._flush_interval is not None and self._flush_after is not None
+        period = self._flush_interval / 4
+        while not self._stop.wait(period):
+            with self._lock:
+                if self._state != _OPEN:
+                    return
+                since = self._dirty_since
+                if since is not None and time.monotonic() - since >= self._flush_after:
+                    self._drain(flush=True, report=False)
+
+    def _fail(self, exc: BaseException, *, report: bool) -> None:
+        self._state = _FAILED
+        reason = getattr(exc, 'strerror', None) or str(exc) or type(exc).__name__
+        self._error = RecordingError(
+            f'recording to {self._path} stopped: {reason}; later messages are dropped')
+        self._error.__cause__ = exc
+        self._pending = []
+        self._close_quietly()
+        if hasattr(self, '_stop'):
+            self._stop.set()
+        if report:
+            self._error_reported = True
+            raise self._error
+
+    def _raise_unreported(self) -> None:
+        if self._state == _FAILED and not self._error_reported and self._error is not None:
+            self._error_reported = True
+            raise self._error
+
+    def _close_quietly(self) -> None:
+        try:
+            self._file.close()  # closes the descriptor even if flushing the buffer fails
+        except (OSError, ValueError):
+            pass

@@ -1,0 +1,123 @@
+"""Scene files: ROS 2 parameter files (``cvt_sim: ros__parameters: {...}``) → validated values.
+
+The same file configures the offline CLI and the node (``--ros-args --params-file``). Nested maps
+flatten to dotted names (``linkage: {crank_length: 0.03}`` ≡ ``linkage.crank_length: 0.03``), as
+the ROS 2 parameter-file parser does.
+"""
+import math
+import os
+from pathlib import Path
+
+import yaml
+
+from . import parameters
+from .physics.linkage import GrashofError
+
+NODE_NAME = 'cvt_sim'
+SCENES_DIR = Path(__file__).resolve().parent.parent / 'config' / 'scenes'
+
+
+class SceneError(ValueError):
+    """A scene file that cannot be used; the message says which file, key and why."""
+
+
+def scene_dirs():
+    """Where scene names are looked up: the source tree, then the installed share folder."""
+    dirs = [SCENES_DIR]
+    for prefix in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep):
+        if prefix:
+            dirs.append(Path(prefix) / 'share' / 'cvt_ros' / 'config' / 'scenes')
+    return [d for d in dirs if d.is_dir()]
+
+
+def available_scenes():
+    names = set()
+    for d in scene_dirs():
+        names.update(p.stem for p in d.glob('*.yaml'))
+    return sorted(names)
+
+
+def resolve(scene):
+    """A path, or a scene name such as ``paper`` (config/scenes/paper.yaml)."""
+    p = Path(scene)
+    if p.is_file():
+        return p
+    for d in scene_dirs():
+        candidate = d / f"{scene}.yaml"
+        if candidate.is_file():
+            return candidate
+    raise SceneError(f"scene {scene!r} not found: not a file, and not one of "
+                     f"{', '.join(available_scenes()) or '(no scenes installed)'}")
+
+
+def _flatten(tree, prefix=''):
+    flat = {}
+    for key, value in tree.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            flat.update(_flatten(value, name + '.'))
+        else:
+            flat[name] = value
+    return flat
+
+
+def _yaml_number(value):
+    # YAML 1.1 (PyYAML) reads '1e-3' (no dot) as a string; ROS's parser reads it as a double.
+    if isinstance(value, str):
+        try:
+            f = float(value)
+        except ValueError:
+            return value
+        if not math.isnan(f):
+            return f
+    return value
+
+
+def read_scene(path):
+    """The raw parameter map of a scene file (dotted names), without validation."""
+    path = resolve(path)
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as exc:
+        raise SceneError(f"{path}: not valid YAML: {exc}") from None
+    if not isinstance(doc, dict) or not doc:
+        raise SceneError(f"{path}: expected a map with top key '{NODE_NAME}:' (or '/**:')")
+    keys = [k for k in doc if k in (NODE_NAME, f'/{NODE_NAME}', '/**') or
+            str(k).endswith(f'/{NODE_NAME}')]
+    if not keys:
+        raise SceneError(f"{path}: top key must be '{NODE_NAME}:' (the node name), found "
+                         f"{list(doc)}")
+    flat = {}
+    for k in keys:
+        body = doc[k]
+        if not isinstance(body, dict) or 'ros__parameters' not in body:
+            raise SceneError(f"{path}: '{k}:' must contain 'ros__parameters:'")
+        params = body['ros__parameters'] or {}
+        if not isinstance(params, dict):
+            raise SceneError(f"{path}: 'ros__parameters' must be a map of parameters")
+        flat.update({name: _yaml_number(v) for name, v in _flatten(params).items()})
+    return flat
+
+
+def load_scene(path, overrides=None):
+    """Validated parameter values of a scene, with ``overrides`` (dotted name → value) applied."""
+    raw = read_scene(path) if path is not None else {}
+    raw.update(overrides or {})
+    try:
+        return parameters.validate(raw)
+    except (parameters.ParameterError, GrashofError) as exc:
+        where = f"{resolve(path)}: " if path is not None else ''
+        raise SceneError(f"{where}{exc}") from None
+
+
+def parse_override(text):
+    """``key=value`` from the command line; the value is read as YAML (numbers, .inf, strings)."""
+    if '=' not in text:
+        raise SceneError(f"--set expects key=value, got {text!r}")
+    key, _, raw = text.partition('=')
+    key = key.strip()
+    try:
+        value = yaml.safe_load(raw) if raw.strip() else ''
+    except yaml.YAMLError:
+        value = raw
+    return key, _yaml_number(value)
