@@ -35,6 +35,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from . import _yaml
+from ._cdr import cdr_size
 from .definitions import get_message_definition, normalize_type_name, type_name_of
 from .errors import LogTimeError, MessageDefinitionError, RecordingError
 from .qos import offered_qos_profiles_yaml
@@ -220,8 +221,9 @@ class BagWriter:
               publish_time_ns: int | None = None) -> bool:
         """Append one message; return True if it was accepted.
 
-        ``message`` is an rclpy message (serialized with ``rclpy.serialization``) or already
-        serialized CDR ``bytes``. ``log_time_ns``: reception time, int64 ns, non-decreasing.
+        ``message`` is an rclpy message (serialized with ``rclpy.serialization``, cut to its
+        exact CDR length, see :mod:`cvt_ros.recording._cdr`) or serialized CDR ``bytes`` (written
+        as given). ``log_time_ns``: reception time, int64 ns, non-decreasing.
         ``publish_time_ns`` defaults to ``log_time_ns``. Returns False without raising when the
         writer is closed or failed (the first I/O error is raised as :class:`RecordingError`).
         """
@@ -368,7 +370,9 @@ class BagWriter:
             raise TypeError(f'topic {entry.name!r} has type {entry.type_name}, got {msg_type}')
         from rclpy.serialization import serialize_message
 
-        return serialize_message(message)
+        data = serialize_message(message)
+        size = cdr_size(message)  # rclpy's buffer ends with the RMW's size-estimate slack
+        return data[:size] if size is not None and size <= len(data) else data
 
     def _add_channel(self, topic: str, type_name: str, schema_encoding: str, schema_data: bytes,
                      message_encoding: str, metadata: Mapping[str, str]) -> int:

@@ -1,0 +1,101 @@
+"""An independent driver of the same equations: scipy's ``solve_ivp`` with terminal events.
+
+Used as the tight-tolerance reference in the tests and as a baseline in the benchmarks. It shares
+only the right-hand side (physics/dynamics.rhs) and the automaton's rules with the compiled
+solver: stepping, dense output and event location are scipy's own.
+"""
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.integrate import solve_ivp
+
+from ..physics import layout as L
+from ..physics.clutch import clutch_engages, clutch_guard, uses_twist_release
+from ..physics.dynamics import project, rhs
+from .simulator import Simulator
+
+
+@dataclass
+class ReferenceResult:
+    t: float
+    y: np.ndarray
+    switch_times: list = field(default_factory=list)
+    switch_modes: list = field(default_factory=list)
+    nfev: int = 0
+    wall_time: float = 0.0
+    samples: np.ndarray = None   # state rows at t_eval (if given)
+
+
+def solve_reference(values, t_end, method='DOP853', rtol=1e-12, atol=1e-14, t_eval=None,
+                    max_switches=100000):
+    """Integrate a scene from its initial state to t_end [s] with scipy; returns the final state,
+    the switch times and modes, and the number of RHS evaluations."""
+    sim = Simulator(values)  # consistent initial state and mode, same P and actuator
+    P, ACT = sim.P, sim.ACT
+    y = sim.y.copy()
+    mode = int(sim.ms[0])
+    t = 0.0
+    dy = np.empty(L.N_STATE)
+    aux = np.empty(L.N_AUX)
+    scratch = np.empty(L.N_STATE)
+    result = ReferenceResult(t=0.0, y=y)
+    rows = []
+    wall0 = time.perf_counter()
+
+    def fun(tt, yy):
+        out = np.empty(L.N_STATE)
+        rhs(tt, yy, mode, P, ACT, out, aux)
+        return out
+
+    def guard(tt, yy):
+        rhs(tt, yy, mode, P, ACT, dy, aux)
+        return clutch_guard(mode, yy, dy, aux, P)[0]
+
+    guard.terminal = True
+    guard.direction = -1.0
+    while t < t_end and len(result.switch_times) < max_switches:
+        seg_eval = None
+        if t_eval is not None:
+            seg_eval = t_eval[(t_eval >= t) & (t_eval <= t_end)]
+        sol = solve_ivp(fun, (t, t_end), y, method=method, rtol=rtol, atol=atol,
+                        events=guard, t_eval=seg_eval)
+        result.nfev += sol.nfev
+        if not sol.success:
+            raise RuntimeError(f"solve_ivp failed at t = {sol.t[-1]}: {sol.message}")
+        if sol.status == 1 and len(sol.t_events[0]):
+            t_new = float(sol.t_events[0][0])
+            y = np.array(sol.y_events[0][0])
+        else:
+            t_new = float(sol.t[-1])
+            y = np.array(sol.y[:, -1])
+        if t_eval is not None and sol.y.shape[1]:
+            keep = sol.t <= t_new
+            for tt, yy in zip(sol.t[keep], sol.y[:, keep].T, strict=True):
+                if not rows or tt > rows[-1][0]:
+                    rows.append(np.concatenate(([tt], yy)))
+        if t_new <= t and sol.status != 1:
+            break
+        t = t_new
+        if sol.status != 1:
+            break
+        # the automaton's reset map (physics/clutch.py), applied as the compiled solver does
+        if mode == L.ENGAGED:
+            if uses_twist_release(P):
+                rhs(t, y, L.DISENGAGED, P, ACT, dy, aux)
+                if aux[L.AUX_SLIP_RATE] < 0.0:
+                    continue
+            mode = L.DISENGAGED
+        elif clutch_engages(t, y, P, ACT, dy, aux, scratch):
+            mode = L.ENGAGED
+        else:
+            continue  # grazing contact: no switch
+        project(t, y, mode, P, ACT)
+        result.switch_times.append(t)
+        result.switch_modes.append(mode)
+    result.t = t
+    result.y = y
+    result.wall_time = time.perf_counter() - wall0
+    if rows:
+        result.samples = np.array(rows)
+    return result
