@@ -61,9 +61,8 @@ class ParameterSpec:
         if math.isnan(value) or (math.isinf(value) and not (self.allow_inf and value > 0)):
             raise ParameterError(self.name, f"{value!r} is not a finite number [{self.unit}]")
         if value < self.low or (self.low_open and value <= self.low) or value > self.high:
-            lo = '(' if self.low_open else '['
-            raise ParameterError(
-                self.name, f"{value:g} {self.unit} is outside {lo}{self.low:g}, {self.high:g}]")
+            unit = '' if self.unit == '-' else f" {self.unit}"
+            raise ParameterError(self.name, f"{value:g}{unit} is outside {self.range_text()}")
         return value
 
 

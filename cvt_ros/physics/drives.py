@@ -3,9 +3,9 @@
 The actuator moves the crank length a(t) towards its command with a trapezoidal velocity profile
 (rate limit ``crank_rate_limit`` [m/s], acceleration limit ``crank_accel_limit`` [m/s²]).
 A pure rate limit would make a'' impulsive and the rocker speed v = u·ω1 + g_a·a' jump while
-engaged; the acceleration limit keeps v continuous. The profile is planned in closed form when a command
-arrives, as at most N_ACT_SEGMENTS rows (t_start, a, a', a''); the solver stops its steps at the
-row boundaries, where a'' jumps.
+engaged; the acceleration limit keeps v continuous. The profile is planned in closed form when a
+command arrives, as at most N_ACT_SEGMENTS rows (t_start, a, a', a''); the solver stops its
+steps at the row boundaries, where a'' jumps.
 """
 import math
 

@@ -1,0 +1,104 @@
+"""Scene files: every shipped scene loads; bad files and bad values give clear errors."""
+import math
+
+import pytest
+
+from cvt_ros.parameters import SPECS, ParameterError, validate
+from cvt_ros.physics.linkage import GrashofError
+from cvt_ros.scene import (
+    SceneError,
+    available_scenes,
+    load_scene,
+    parse_override,
+    read_scene,
+    resolve,
+)
+
+REQUIRED = {'paper', 'conveyor', 'mixer', 'stiff_shaft', 'massless_clutch', 'rigid_shaft',
+            'neutral_crank', 'near_grashof', 'grazing'}
+
+
+def write(tmp_path, text, name='scene.yaml'):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def test_every_shipped_scene_loads_and_uses_only_known_keys():
+    assert REQUIRED <= set(available_scenes())
+    for name in available_scenes():
+        raw = read_scene(name)
+        assert set(raw) <= set(SPECS)
+        values = load_scene(name)
+        assert set(values) == set(SPECS)
+
+
+def test_paper_scene_has_the_values_of_physics_md():
+    v = load_scene('paper')
+    assert (v['linkage.rocker_length'], v['linkage.coupler_length'],
+            v['linkage.pivot_distance']) == (0.10, 0.20, 0.20)
+    assert (v['inertia.motor'], v['inertia.rocker'], v['inertia.clutch_driven'],
+            v['inertia.output']) == (0.05, 0.002, 0.001, 0.5)
+    assert v['shaft.stiffness'] == 500.0 and v['load.torque'] == 5.0
+    assert v['motor.model'] == 'induction'
+
+
+def test_rigid_scene_reads_yaml_infinity():
+    assert math.isinf(load_scene('rigid_shaft')['shaft.stiffness'])
+
+
+def test_flat_dotted_keys_equal_nested_keys(tmp_path):
+    nested = write(tmp_path, "cvt_sim:\n  ros__parameters:\n    load:\n      torque: 7.5\n",
+                   'a.yaml')
+    flat = write(tmp_path, "cvt_sim:\n  ros__parameters:\n    load.torque: 7.5\n", 'b.yaml')
+    assert load_scene(nested) == load_scene(flat)
+    wildcard = write(tmp_path, "/**:\n  ros__parameters:\n    load.torque: 1e-3\n", 'c.yaml')
+    assert load_scene(wildcard)['load.torque'] == 1e-3
+
+
+def test_unknown_key_names_the_closest_and_the_valid_ones(tmp_path):
+    p = write(tmp_path, "cvt_sim:\n  ros__parameters:\n    linkage:\n      crank_lenght: 0.03\n")
+    with pytest.raises(SceneError) as err:
+        load_scene(p)
+    msg = str(err.value)
+    assert 'linkage.crank_lenght' in msg and 'did you mean linkage.crank_length' in msg
+    assert 'inertia.output' in msg and str(p) in msg
+
+
+@pytest.mark.parametrize('body, fragment', [
+    ("cvt_sim:\n  ros__parameters:\n    inertia:\n      output: -1.0\n", 'inertia.output'),
+    ("cvt_sim:\n  ros__parameters:\n    inertia:\n      motor: fast\n", 'expected a number'),
+    ("cvt_sim:\n  ros__parameters:\n    motor:\n      model: diesel\n", "is not one of"),
+    ("cvt_sim:\n  ros__parameters:\n    shaft:\n      stiffness: .nan\n", 'not a finite'),
+    ("cvt_sim:\n  ros__parameters:\n    linkage:\n      crank_length: 0.12\n", 'Grashof'),
+    ("other_node:\n  ros__parameters:\n    load.torque: 1.0\n", "top key must be 'cvt_sim:'"),
+    ("cvt_sim:\n  load.torque: 1.0\n", 'ros__parameters'),
+    ("cvt_sim: [1, 2\n", 'not valid YAML'),
+    ("", 'expected a map'),
+])
+def test_bad_scene_files_give_clear_errors(tmp_path, body, fragment):
+    with pytest.raises(SceneError, match=fragment.replace('(', r'\(')):
+        load_scene(write(tmp_path, body))
+
+
+def test_missing_scene_lists_the_available_ones():
+    with pytest.raises(SceneError, match='paper'):
+        resolve('no_such_scene')
+
+
+def test_overrides_parse_as_yaml_values():
+    assert parse_override('shaft.stiffness=.inf') == ('shaft.stiffness', math.inf)
+    assert parse_override('solver.rtol=1e-9') == ('solver.rtol', 1e-9)
+    assert parse_override('motor.model=constant_torque') == ('motor.model', 'constant_torque')
+    with pytest.raises(SceneError):
+        parse_override('load.torque')
+
+
+def test_validate_refuses_with_value_and_limit():
+    with pytest.raises(GrashofError) as err:
+        validate({'linkage.crank_length': 0.1})
+    assert err.value.value == 0.1 and err.value.limit == pytest.approx(0.1)
+    with pytest.raises(ParameterError, match=r'1.5 is outside \(0, 1\]'):
+        validate({'motor.breakdown_slip': 1.5})
+    with pytest.raises(ParameterError, match='J2 > 0'):
+        validate({'model.formulation': 'paper', 'inertia.rocker': 0.0})
