@@ -15,8 +15,7 @@ slip. A grazing touch (s'_free ≥ 0 at s = 0) does not engage.
 Half-open rule: a guard that a segment starts on (|g| ≤ tolerance) is disarmed until it leaves
 that band, so the solver cannot loop on the switch point.
 """
-from cvt_ros.physics.compiled import kernel
-
+from .compiled import inline_kernel, kernel
 from .dynamics import rhs
 from .layout import (
     AUX_CLUTCH_TORQUE,
@@ -47,12 +46,12 @@ KIND_ENGAGE_IMPACT = 2
 KIND_GRAZE = 3  # slip touched zero without the clutch taking torque: no switch
 
 
-@kernel
+@inline_kernel
 def uses_twist_release(P):
     return P[P_RELEASE] == RELEASE_TWIST and P[P_RIGID] == 0.0
 
 
-@kernel
+@inline_kernel
 def clutch_guard(mode, y, dy, aux, P):
     """Witness value g (switch when g falls through 0) and its time derivative (nan if unknown).
 
@@ -65,7 +64,7 @@ def clutch_guard(mode, y, dy, aux, P):
     return aux[AUX_SLIP], aux[AUX_SLIP_RATE]
 
 
-@kernel
+@inline_kernel
 def guard_tolerance(mode, y, aux, P):
     """Half-width of the band around g = 0 inside which the guard counts as 'at zero'."""
     if mode == ENGAGED:

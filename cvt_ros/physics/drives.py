@@ -11,8 +11,7 @@ import math
 
 import numpy as np
 
-from cvt_ros.physics.compiled import kernel
-
+from .compiled import inline_kernel
 from .layout import (
     ACT_A,
     ACT_ACC,
@@ -32,7 +31,7 @@ from .layout import (
 )
 
 
-@kernel
+@inline_kernel
 def motor_torque(omega1, P):
     """M1(ω1) [N·m] for the induction and constant-torque models.
 
@@ -51,14 +50,14 @@ def motor_torque(omega1, P):
     return 0.0
 
 
-@kernel
+@inline_kernel
 def load_torque(omega4, P):
     """M4(ω4) [N·m] = constant + viscous·ω4 + quadratic·ω4·|ω4| (conveyor, mixer)."""
     return (P[P_LOAD_TORQUE] + P[P_LOAD_VISCOUS] * omega4
             + P[P_LOAD_QUADRATIC] * omega4 * abs(omega4))
 
 
-@kernel
+@inline_kernel
 def crank_actuator(t, ACT):
     """(a, a', a'') at time t [s] from the planned profile rows."""
     k = 0
@@ -73,7 +72,7 @@ def crank_actuator(t, ACT):
     return ACT[k, ACT_A] + v0 * tau + 0.5 * acc * tau * tau, v0 + acc * tau, acc
 
 
-@kernel
+@inline_kernel
 def next_actuator_break(t, ACT):
     """First profile row boundary strictly after t [s] (inf when none)."""
     for i in range(1, N_ACT_SEGMENTS):

@@ -22,8 +22,7 @@ where P_act = g_a·a'·(Jrock·v' − Q) = −λ·fa·a' is the power of the cra
 """
 import math
 
-from cvt_ros.physics.compiled import kernel
-
+from .compiled import inline_kernel, kernel
 from .drives import crank_actuator, load_torque, motor_torque
 from .layout import (
     AUX_ACTUATOR_POWER,
@@ -67,6 +66,12 @@ from .layout import (
     W_DAMPING,
     W_LOAD,
     W_MOTOR,
+    Z_OMEGA3,
+    Z_OMEGA4,
+    Z_PHI4,
+    Z_TWIST,
+    Z_W_DAMPING,
+    Z_W_LOAD,
 )
 from .linkage import constraint_partials, kinematics, rocker_angle
 
@@ -186,8 +191,7 @@ def rhs(t, y, mode, P, ACT, dy, aux):
             tc = J3 * dv + ts
         elif J3 > 0.0:
             w3 = y[OMEGA3]
-            ts = c * theta + kd * (w3 - w4)
-            dy[OMEGA3] = -ts / J3
+            _, dy[OMEGA3], _, _, ts = disengaged_output_rates(theta, w3, w4, P)
             tc = 0.0
         else:
             # Massless node: Ts = 0, so c·θ + k·(ω3 − ω4) = 0 (θ ≡ 0 without damping).
@@ -314,3 +318,38 @@ def finite_state(y):
         if not math.isfinite(y[i]):
             return False
     return True
+
+
+@inline_kernel
+def disengaged_output_rates(theta, w3, w4, P):
+    """The output subsystem while disengaged, J3 > 0, elastic shaft (eq. 12):
+    J3·ω3' = −Ts, J4·ω4' = Ts − M4, Ts = c·θ + k·(ω3 − ω4). Returns (θ', ω3', ω4', M4, Ts).
+
+    It does not depend on the input subsystem, which lets the solver integrate it on its own,
+    faster clock (solver/hybrid.py) at the cost of a few flops per step.
+    """
+    m4 = load_torque(w4, P)
+    ts = P[P_C] * theta + P[P_KD] * (w3 - w4)
+    return w3 - w4, -ts / P[P_J3], (ts - m4) / P[P_J4], m4, ts
+
+
+@inline_kernel
+def output_rhs(z, P, dz):
+    """d/dt of the disengaged output states z = y[OUTPUT_STATES] (layout Z_*)."""
+    dtheta, dw3, dw4, m4, _ = disengaged_output_rates(z[Z_TWIST], z[Z_OMEGA3], z[Z_OMEGA4], P)
+    dz[Z_TWIST] = dtheta
+    dz[Z_OMEGA3] = dw3
+    dz[Z_PHI4] = z[Z_OMEGA4]
+    dz[Z_OMEGA4] = dw4
+    dz[Z_W_LOAD] = m4 * z[Z_OMEGA4]
+    dz[Z_W_DAMPING] = P[P_KD] * dtheta * dtheta
+
+
+@inline_kernel
+def rocker_speed(t, y, P, ACT):
+    """v [rad/s]: the closed-form u·ω1 + g_a·a' (reduced) or the state ω2 (paper)."""
+    if P[P_FORMULATION] == FORMULATION_PAPER:
+        return y[OMEGA2]
+    a, ad, _ = crank_actuator(t, ACT)
+    _, _, u, _, ga, _, _ = kinematics(y[PHI1], a, P[P_B], P[P_D], P[P_H], P[P_SIGMA])
+    return u * y[OMEGA1] + ga * ad

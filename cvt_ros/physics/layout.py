@@ -14,6 +14,7 @@ State vector ``y`` (both formulations use the same layout, SI units)::
 The twist, not φ3, is a state: φ3 − φ4 is a small difference of two large, ever-growing angles and
 would lose digits over hours of simulated time. φ3 = φ4 + θ is reconstructed on output.
 """
+import numpy as np
 
 # --- state -------------------------------------------------------------------------------------
 PHI1 = 0
@@ -30,6 +31,19 @@ W_DAMPING = 10
 W_ACTUATOR = 11
 N_STATE = 12
 N_DYNAMIC = 8  # states that take part in error control (the work quadratures do not)
+
+# --- the disengaged output subsystem z = y[OUTPUT_STATES], integrated on its own clock --------
+OUTPUT_STATES = np.array((TWIST, OMEGA3, PHI4, OMEGA4, W_LOAD, W_DAMPING))
+Z_TWIST = 0
+Z_OMEGA3 = 1
+Z_PHI4 = 2
+Z_OMEGA4 = 3
+Z_W_LOAD = 4
+Z_W_DAMPING = 5
+N_OUTPUT = 6
+N_OUTPUT_DYNAMIC = 4
+# error-controlled while the output subsystem runs on its own clock
+INPUT_DYNAMIC = np.array((PHI1, OMEGA1, PHI2, OMEGA2))
 
 # --- clutch modes ------------------------------------------------------------------------------
 DISENGAGED = 0

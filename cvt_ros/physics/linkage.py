@@ -11,7 +11,7 @@ g_aa = ∂²φ2/∂a² (the last three because the crank length moves at run tim
 """
 import math
 
-from cvt_ros.physics.compiled import kernel
+from .compiled import inline_kernel, kernel
 
 
 class GrashofError(ValueError):
@@ -67,7 +67,7 @@ def rocker_angle(phi1, a, b, d, h, sigma):
     return math.atan2(q, p) + sigma * math.acos(ratio)
 
 
-@kernel
+@inline_kernel
 def constraint_partials(phi1, phi2, a, b, h, d):
     """f of eq. 1 and its first and second partial derivatives at (φ1, φ2, a).
 
@@ -91,7 +91,7 @@ def constraint_partials(phi1, phi2, a, b, h, d):
     return f, f1, f2, fa, f11, f12, f22, f1a, f2a, 2.0
 
 
-@kernel
+@inline_kernel
 def rocker_cos_sin(phi1, a, b, d, h, sigma):
     """(cos φ2, sin φ2, cos φ1, sin φ1) without inverse trigonometry.
 
@@ -109,7 +109,7 @@ def rocker_cos_sin(phi1, a, b, d, h, sigma):
     return (p * r - sigma * q * root) / rho2, (q * r + sigma * p * root) / rho2, c1, s1
 
 
-@kernel
+@inline_kernel
 def kinematics(phi1, a, b, d, h, sigma):
     """Rocker angle derivatives for a crank angle φ1 [rad] and crank length a [m].
 

@@ -12,28 +12,52 @@ import math
 
 import numpy as np
 
-from cvt_ros.physics.compiled import kernel
-
 from ..physics.clutch import (
     KIND_ENGAGE,
     KIND_ENGAGE_IMPACT,
     KIND_GRAZE,
     KIND_RELEASE,
+    SLIP_TOLERANCE,
     clutch_engages,
     clutch_guard,
     free_slip_rate,
     guard_tolerance,
     uses_twist_release,
 )
+from ..physics.compiled import inline_kernel, kernel
 from ..physics.drives import next_actuator_break
-from ..physics.dynamics import engage_with_impact, finite_state, project, rhs
-from ..physics.layout import AUX_SLIP, DISENGAGED, ENGAGED, N_AUX
+from ..physics.dynamics import (
+    engage_with_impact,
+    finite_state,
+    output_rhs,
+    project,
+    rhs,
+    rocker_speed,
+)
+from ..physics.layout import (
+    AUX_SLIP,
+    DISENGAGED,
+    ENGAGED,
+    N_AUX,
+    N_OUTPUT,
+    OMEGA3,
+    OUTPUT_STATES,
+    P_J3,
+    P_RIGID,
+    Z_OMEGA3,
+)
 from .output import write_sample
 from .steppers import (
     DOPRI5,
     DP_ERROR_EXPONENT,
+    ERR_FULL,
+    ERR_INPUT,
+    ERR_OUTPUT,
+    FULL,
+    INPUT,
     MAX_FACTOR,
     MIN_FACTOR,
+    OUTPUT,
     SAFETY,
     dense_state,
     dopri5_step,
@@ -56,12 +80,14 @@ C_NEXT_SAMPLE = 2
 C_EVENTS = 3
 C_STATUS = 4
 C_SWITCHES = 5
-N_COUNTERS = 6
+C_SUBSTEPS = 6
+N_COUNTERS = 7
 
 STATUS_OK = 0
 STATUS_EVENTS_FULL = 1
 STATUS_STEP_TOO_SMALL = 2
 STATUS_NONFINITE = 3
+STATUS_ZENO = 4  # events without the time moving on: the automaton would loop
 
 # events table columns
 E_T = 0
@@ -70,24 +96,53 @@ E_KIND = 2
 E_VALUE = 3
 N_EVENT_COLUMNS = 4
 
+MAX_EVENTS_AT_ONE_TIME = 8
+
 _NO_EVENT = 0
 _CROSSING = 1
 _LATE = 2
 
 
 @kernel
-def _step(method, t, y, h, mode, P, ACT, K, y_new, ytmp, aux, rtol, atol):
+def _step(method, kind, t, y, h, mode, P, ACT, K, y_new, ytmp, aux, rtol, atol, err_idx):
     if method == DOPRI5:
-        return dopri5_step(t, y, h, mode, P, ACT, K, y_new, ytmp, aux, rtol, atol)
+        return dopri5_step(kind, t, y, h, mode, P, ACT, K, y_new, ytmp, aux, rtol, atol, err_idx)
     return rk4_step(t, y, h, mode, P, ACT, K, y_new, ytmp, aux)
 
 
-@kernel
+@inline_kernel
 def _guard_at(method, theta, t, h, y0, y1, K, mode, P, ACT, ytmp, dytmp, auxtmp):
     dense_state(method, theta, h, y0, y1, K, ytmp)
     rhs(t + theta * h, ytmp, mode, P, ACT, dytmp, auxtmp)
     g, _ = clutch_guard(mode, ytmp, dytmp, auxtmp, P)
     return g
+
+
+@inline_kernel
+def _combine(sigma, t, h, y0, K, tau, hs, z0, Ko, ycomb, ztmp):
+    """The full state at tau + σ·hs inside a split step: the input subsystem from the main
+    step's dense output, the output subsystem from the sub-step's."""
+    tt = tau + sigma * hs
+    dense_state(DOPRI5, (tt - t) / h, h, y0, y0, K, ycomb)
+    dense_state(DOPRI5, sigma, hs, z0, z0, Ko, ztmp)
+    for i in range(N_OUTPUT):
+        ycomb[OUTPUT_STATES[i]] = ztmp[i]
+    return tt
+
+
+@inline_kernel
+def _split_slip(sigma, t, h, y0, K, tau, hs, z0, Ko, P, ACT, ycomb, ztmp):
+    """Slip s = ω3 − v at tau + σ·hs inside a split step [rad/s]."""
+    tt = _combine(sigma, t, h, y0, K, tau, hs, z0, Ko, ycomb, ztmp)
+    return ycomb[OMEGA3] - rocker_speed(tt, ycomb, P, ACT)
+
+
+@inline_kernel
+def _guard_value(split, method, theta, t, h, y0, y1, K, tau, hs, z0, Ko, mode, P, ACT, ytmp,
+                 dytmp, auxtmp, ztmp):
+    if split:
+        return _split_slip(theta, t, h, y0, K, tau, hs, z0, Ko, P, ACT, ytmp, ztmp)
+    return _guard_at(method, theta, t, h, y0, y1, K, mode, P, ACT, ytmp, dytmp, auxtmp)
 
 
 @kernel
@@ -121,9 +176,12 @@ def _hermite_minimum(g0, d0, g1, d1):
 
 
 @kernel
-def _locate(method, t, h, y0, y1, K, mode, P, ACT, lo, hi, glo, ghi, tol_theta,
-            ytmp, dytmp, auxtmp):
-    """Illinois' regula falsi on g(θ), g(lo) > 0 > g(hi); returns θ just past the root."""
+def _locate(split, method, t, h, y0, y1, K, tau, hs, z0, Ko, mode, P, ACT, lo, hi, glo, ghi,
+            tol_theta, ytmp, dytmp, auxtmp, ztmp):
+    """Illinois' regula falsi on g(θ), g(lo) > 0 > g(hi); returns θ just past the root.
+
+    θ runs over the step [t, t+h] (split = False) or over the output sub-step [tau, tau+hs].
+    """
     side = 0
     for it in range(200):
         if hi - lo <= tol_theta:
@@ -134,7 +192,8 @@ def _locate(method, t, h, y0, y1, K, mode, P, ACT, lo, hi, glo, ghi, tol_theta,
             m = hi - ghi * (hi - lo) / (ghi - glo)
             if not (lo < m < hi):
                 m = 0.5 * (lo + hi)
-        gm = _guard_at(method, m, t, h, y0, y1, K, mode, P, ACT, ytmp, dytmp, auxtmp)
+        gm = _guard_value(split, method, m, t, h, y0, y1, K, tau, hs, z0, Ko, mode, P, ACT,
+                          ytmp, dytmp, auxtmp, ztmp)
         if gm > 0.0:
             lo = m
             glo = gm
@@ -168,13 +227,164 @@ def _emit(method, t0, h, y0, y1, K, mode, P, ACT, grid, out, counters, t_limit, 
 
 
 @kernel
+def _emit_split(t, h, y0, K, tau, hs, z0, Ko, mode, P, ACT, grid, out, counters, t_limit, ycomb,
+                ztmp, dytmp, auxtmp):
+    """Grid samples in (tau, t_limit] inside a split step (input and output dense outputs)."""
+    i = counters[C_NEXT_SAMPLE]
+    while i < grid.shape[0] and grid[i] <= t_limit:
+        sigma = (grid[i] - tau) / hs if hs > 0.0 else 1.0
+        _combine(sigma, t, h, y0, K, tau, hs, z0, Ko, ycomb, ztmp)
+        project(grid[i], ycomb, mode, P, ACT)
+        rhs(grid[i], ycomb, mode, P, ACT, dytmp, auxtmp)
+        write_sample(out[i], grid[i], ycomb, mode, auxtmp)
+        i += 1
+    counters[C_NEXT_SAMPLE] = i
+
+
+@kernel
+def _split_output(t, h, y, y_new, K, mode, P, ACT, rtol, atol, armed, g0, h_io, grid, out,
+                  counters, Ko, z, z_new, ztmp, ycomb, ytmp, dytmp, auxtmp):
+    """Integrate the disengaged output subsystem over the accepted input step [t, t+h] on its own
+    adaptive clock, watching the slip at every sub-step.
+
+    The output states of y_new are replaced by the sub-integration's. On a slip crossing (or a
+    slip found beyond the band, 'late'), the input step is re-taken exactly to that time and the
+    state there is left in y_new. Returns (t reached, fire, last slip, armed).
+    """
+    for i in range(N_OUTPUT):
+        z[i] = y[OUTPUT_STATES[i]]
+    output_rhs(z, P, Ko[0])
+    h_out = h_io[1]
+    if h_out <= 0.0:
+        h_out = initial_step(OUTPUT, t, z, mode, P, ACT, Ko[0], rtol, atol, ztmp, dytmp,
+                             ERR_OUTPUT)
+    tau = t
+    t1 = t + h
+    fire = _NO_EVENT
+    v0 = z[Z_OMEGA3] - g0  # rocker speed at t
+    while tau < t1:
+        hs = min(h_out, t1 - tau)
+        last = tau + hs >= t1
+        err = dopri5_step(OUTPUT, tau, z, hs, mode, P, ACT, Ko, z_new, ztmp, auxtmp, rtol, atol,
+                          ERR_OUTPUT)
+        counters[C_SUBSTEPS] += 1
+        if not (err <= 1.0):
+            h_out = hs * max(MIN_FACTOR, SAFETY * err ** DP_ERROR_EXPONENT) if err < math.inf \
+                else hs * MIN_FACTOR
+            if h_out < 1e-14 * max(1.0, abs(tau)):
+                counters[C_STATUS] = STATUS_STEP_TOO_SMALL
+                return tau, fire, g0, armed
+            continue
+        factor = MAX_FACTOR if err == 0.0 else min(MAX_FACTOR, SAFETY * err ** DP_ERROR_EXPONENT)
+        g1 = _split_slip(1.0, t, h, y, K, tau, hs, z, Ko, P, ACT, ycomb, ztmp)
+        v1 = ycomb[OMEGA3] - g1
+        gtol = SLIP_TOLERANCE * (1.0 + abs(v1) + abs(z_new[Z_OMEGA3]))
+        sigma = 1.0
+        hi = 1.0
+        ghi = g1
+        if armed and g0 > 0.0:
+            if g1 < 0.0:
+                fire = _CROSSING
+            else:
+                # both ends positive: a dip inside the sub-step (grazing)? The rocker is slow
+                # on the sub-step's scale, so its mean acceleration stands in for v'.
+                dv = (v1 - v0) / hs
+                tm, pm = _hermite_minimum(g0, hs * (Ko[0, Z_OMEGA3] - dv), g1,
+                                          hs * (Ko[6, Z_OMEGA3] - dv))
+                if pm < 0.0:
+                    gm = _split_slip(tm, t, h, y, K, tau, hs, z, Ko, P, ACT, ycomb, ztmp)
+                    if gm < 0.0:
+                        fire = _CROSSING
+                        hi = tm
+                        ghi = gm
+            if fire == _CROSSING:
+                sigma = _locate(True, DOPRI5, t, h, y, y_new, K, tau, hs, z, Ko, mode, P, ACT,
+                                0.0, hi, g0, ghi, max(1e-13, 8.0 * 2.2e-16 * abs(tau)) / hs,
+                                ycomb, dytmp, auxtmp, ztmp)
+        if fire == _NO_EVENT and g1 < -gtol:
+            fire = _LATE
+        if fire != _NO_EVENT:
+            t_ev = tau + sigma * hs
+            # true steps to the event: the output sub-step, then the input step from t
+            dopri5_step(OUTPUT, tau, z, t_ev - tau, mode, P, ACT, Ko, z_new, ztmp, auxtmp, rtol,
+                        atol, ERR_OUTPUT)
+            _emit_split(t, h, y, K, tau, t_ev - tau, z, Ko, mode, P, ACT, grid, out, counters,
+                        t_ev, ycomb, ztmp, dytmp, auxtmp)
+            if t_ev < t1:
+                dopri5_step(INPUT, t, y, t_ev - t, mode, P, ACT, K, y_new, ytmp, auxtmp, rtol,
+                            atol, ERR_INPUT)
+            for i in range(N_OUTPUT):
+                y_new[OUTPUT_STATES[i]] = z_new[i]
+            h_io[1] = h_out
+            return t_ev, fire, g1, armed
+        _emit_split(t, h, y, K, tau, hs, z, Ko, mode, P, ACT, grid, out, counters,
+                    t1 if last else tau + hs, ycomb, ztmp, dytmp, auxtmp)
+        tau = t1 if last else tau + hs
+        for i in range(N_OUTPUT):
+            z[i] = z_new[i]
+            Ko[0, i] = Ko[6, i]
+        g0 = g1
+        v0 = v1
+        if not armed and abs(g1) > gtol:
+            armed = True
+        h_out = max(h_out, hs * factor) if last else hs * factor
+    for i in range(N_OUTPUT):
+        y_new[OUTPUT_STATES[i]] = z[i]
+    h_io[1] = h_out
+    return t1, fire, g0, armed
+
+
+@kernel
+def _single_rate(method, t, h, err, clipped, t_end, y, y_new, K, mode, P, ACT, armed, g0, gd0,
+                 aux1, rtol, atol, grid, out, counters, ytmp, dytmp, auxtmp):
+    """Witness function over an accepted step of the whole system: crossing (located on the
+    dense output, then a true step to it), a dip inside the step (grazing, by the Hermite cubic
+    of g and g'), or a guard found beyond its band ('late'). Emits the samples up to the time
+    reached and leaves the state there in y_new. Returns (t reached, fire, g at that time)."""
+    g1, gd1 = clutch_guard(mode, y_new, K[6], aux1, P)
+    gtol = guard_tolerance(mode, y_new, aux1, P)
+    fire = _NO_EVENT
+    hi = 1.0
+    ghi = g1
+    if armed and g0 > 0.0:
+        if g1 < 0.0:
+            fire = _CROSSING
+        elif not math.isnan(gd0) and not math.isnan(gd1):
+            tm, pm = _hermite_minimum(g0, h * gd0, g1, h * gd1)
+            if pm < 0.0:
+                gm = _guard_at(method, tm, t, h, y, y_new, K, mode, P, ACT, ytmp, dytmp, auxtmp)
+                if gm < 0.0:
+                    fire = _CROSSING
+                    hi = tm
+                    ghi = gm
+    if fire == _NO_EVENT and g1 < -gtol:
+        fire = _LATE  # the guard left its band on the wrong side: switch now
+    if fire == _CROSSING:
+        tol_theta = max(1e-13, 8.0 * 2.2e-16 * abs(t)) / h
+        theta = _locate(False, method, t, h, y, y_new, K, 0.0, 1.0, y, K, mode, P, ACT, 0.0, hi,
+                        g0, ghi, tol_theta, ytmp, dytmp, auxtmp, ytmp)
+        h_ev = theta * h
+        # a true step to the event, not the interpolant: the state there is step-accurate
+        _step(method, FULL, t, y, h_ev, mode, P, ACT, K, y_new, ytmp, aux1, rtol, atol, ERR_FULL)
+        _emit(method, t, h_ev, y, y_new, K, mode, P, ACT, grid, out, counters, t + h_ev, ytmp,
+              dytmp, auxtmp)
+        g1, _ = clutch_guard(mode, y_new, K[6], aux1, P)
+        return t + h_ev, fire, g1
+    t_new = t_end if (clipped and t + h >= t_end) else t + h
+    _emit(method, t, h, y, y_new, K, mode, P, ACT, grid, out, counters, t_new, ytmp, dytmp,
+          auxtmp)
+    return t_new, fire, g1
+
+
+@kernel
 def advance(t, t_end, y, ms, P, ACT, S, h_io, grid, out, events, counters, ledger):
     """Integrate the hybrid system from t to t_end [s]; returns the time reached.
 
-    y: state (in/out); ms: int64[2] (clutch mode, guard armed); S: settings (S_*); h_io: float[1]
-    step-size proposal carried between calls (≤ 0: choose); grid/out: sample times and rows
-    (counters[C_NEXT_SAMPLE] is the next one to fill); events: rows (t, new mode, kind, value);
-    ledger: float[1] kinetic energy lost in late (impact) engagements [J].
+    y: state (in/out); ms: int64[2] (clutch mode, guard armed); S: settings (S_*);
+    h_io: float[2] step-size proposals (main, output sub-steps) carried between calls (≤ 0:
+    choose); grid/out: sample times and rows (counters[C_NEXT_SAMPLE] is the next one to fill);
+    events: rows (t, new mode, kind, value); ledger: float[1] kinetic energy lost in late
+    (impact) engagements [J].
     Stops early with counters[C_STATUS] ≠ 0 when the event table is full or a step fails.
     """
     method = int(S[S_METHOD])
@@ -188,17 +398,28 @@ def advance(t, t_end, y, ms, P, ACT, S, h_io, grid, out, events, counters, ledge
     aux0 = np.empty(N_AUX)
     aux1 = np.empty(N_AUX)
     auxtmp = np.empty(N_AUX)
+    Ko = np.empty((7, N_OUTPUT))
+    z = np.empty(N_OUTPUT)
+    z_new = np.empty(N_OUTPUT)
+    ztmp = np.empty(N_OUTPUT)
+    ycomb = np.empty(n)
+    # a disengaged elastic output with J3 > 0 runs on its own clock (multirate, see _split_output)
+    can_split = method == DOPRI5 and P[P_RIGID] == 0.0 and P[P_J3] > 0.0
     mode = ms[0]
     armed = ms[1] == 1
     counters[C_STATUS] = STATUS_OK
 
     rhs(t, y, mode, P, ACT, K[0], aux0)
     g0, gd0 = clutch_guard(mode, y, K[0], aux0, P)
+    armed = armed or abs(g0) > guard_tolerance(mode, y, aux0, P)
     h_prop = h_io[0]
     if method == DOPRI5 and h_prop <= 0.0:
-        h_prop = initial_step(t, y, mode, P, ACT, K[0], rtol, atol, ytmp, dytmp)
+        h_prop = initial_step(FULL, t, y, mode, P, ACT, K[0], rtol, atol, ytmp, dytmp,
+                              ERR_FULL)
     t_start = t
     h_fixed = S[S_H_FIXED]
+    t_last_event = -math.inf
+    stalled = 0
 
     while t < t_end:
         # ---- step size: error control or the fixed grid, clipped at t_end and actuator breaks
@@ -220,13 +441,15 @@ def advance(t, t_end, y, ms, P, ACT, S, h_io, grid, out, events, counters, ledge
         if h <= 0.0:
             break
 
-        err = _step(method, t, y, h, mode, P, ACT, K, y_new, ytmp, aux1, rtol, atol)
+        split = can_split and mode == DISENGAGED
+        err = _step(method, INPUT if split else FULL, t, y, h, mode, P, ACT, K, y_new, ytmp, aux1,
+                    rtol, atol, ERR_INPUT if split else ERR_FULL)
         counters[C_STEPS] += 1
         if method == DOPRI5:
             if not (err <= 1.0) or not finite_state(y_new):
                 counters[C_REJECTED] += 1
-                factor = MIN_FACTOR if not (err < math.inf) else max(
-                    MIN_FACTOR, SAFETY * err ** DP_ERROR_EXPONENT)
+                factor = max(MIN_FACTOR, SAFETY * err ** DP_ERROR_EXPONENT) if (
+                    err < math.inf and finite_state(y_new)) else MIN_FACTOR
                 h_prop = h * factor
                 if h_prop < 1e-14 * max(1.0, abs(t)):
                     counters[C_STATUS] = STATUS_STEP_TOO_SMALL
@@ -236,61 +459,49 @@ def advance(t, t_end, y, ms, P, ACT, S, h_io, grid, out, events, counters, ledge
             counters[C_STATUS] = STATUS_NONFINITE
             break
 
-        # ---- witness function over the step
-        g1, gd1 = clutch_guard(mode, y_new, K[6], aux1, P)
-        gtol = guard_tolerance(mode, y_new, aux1, P)
-        fire = _NO_EVENT
-        hi = 1.0
-        ghi = g1
-        if armed and g0 > 0.0:
-            if g1 < 0.0:
-                fire = _CROSSING
-            elif not math.isnan(gd0) and not math.isnan(gd1):
-                # both ends positive: a dip below zero inside the step (grazing)?
-                tm, pm = _hermite_minimum(g0, h * gd0, g1, h * gd1)
-                if pm < 0.0:
-                    gm = _guard_at(method, tm, t, h, y, y_new, K, mode, P, ACT,
-                                   ytmp, dytmp, auxtmp)
-                    if gm < 0.0:
-                        fire = _CROSSING
-                        hi = tm
-                        ghi = gm
-        if fire == _NO_EVENT and g1 < -gtol:
-            fire = _LATE  # the guard started on the wrong side of the band: switch now
-
-        if fire == _CROSSING:
-            tol_theta = max(1e-13, 8.0 * 2.2e-16 * abs(t)) / h
-            theta = _locate(method, t, h, y, y_new, K, mode, P, ACT, 0.0, hi, g0, ghi, tol_theta,
-                            ytmp, dytmp, auxtmp)
-            h_ev = theta * h
-            # a true step to the event, not the interpolant: the state there is step-accurate
-            _step(method, t, y, h_ev, mode, P, ACT, K, y_new, ytmp, aux1, rtol, atol)
-            t_new = t + h_ev
-            h_taken = h_ev
-        else:
-            t_new = t_end if (clipped and t + h >= t_end) else t + h
-            h_taken = h
-        _emit(method, t, h_taken, y, y_new, K, mode, P, ACT, grid, out, counters, t_new,
-              ytmp, dytmp, auxtmp)
-        if method == DOPRI5 and fire != _CROSSING:
-            factor = MAX_FACTOR if err == 0.0 else min(MAX_FACTOR,
-                                                       SAFETY * err ** DP_ERROR_EXPONENT)
-            h_prop = max(h_prop, h * factor) if clipped else h * factor
-        t = t_new
-        for i in range(n):
-            y[i] = y_new[i]
-
-        if fire == _NO_EVENT:
-            project(t, y, mode, P, ACT)
+        if split:
+            t_new, fire, g1, armed = _split_output(
+                t, h, y, y_new, K, mode, P, ACT, rtol, atol, armed, g0, h_io, grid, out,
+                counters, Ko, z, z_new, ztmp, ycomb, ytmp, dytmp, auxtmp)
+            if counters[C_STATUS] != STATUS_OK:
+                break
+            if fire == _NO_EVENT:
+                factor = MAX_FACTOR if err == 0.0 else min(MAX_FACTOR,
+                                                           SAFETY * err ** DP_ERROR_EXPONENT)
+                h_prop = max(h_prop, h * factor) if clipped else h * factor
+                t = t_end if (clipped and t + h >= t_end) else t_new
+                for i in range(n):
+                    y[i] = y_new[i]
+                    K[0, i] = K[6, i]  # FSAL: the input part is exact (output not used split)
+                project(t, y, mode, P, ACT)
+                g0 = g1
+                gd0 = math.nan
+                continue
+            t = t_new
             for i in range(n):
-                K[0, i] = K[6, i]
-            for i in range(N_AUX):
-                aux0[i] = aux1[i]
-            g0 = g1
-            gd0 = gd1
-            if not armed and abs(g1) > gtol:
-                armed = True
-            continue
+                y[i] = y_new[i]
+            rhs(t, y, mode, P, ACT, dytmp, aux1)
+            g1 = aux1[AUX_SLIP]
+        else:
+            t_new, fire, g1 = _single_rate(
+                method, t, h, err, clipped, t_end, y, y_new, K, mode, P, ACT, armed, g0, gd0,
+                aux1, rtol, atol, grid, out, counters, ytmp, dytmp, auxtmp)
+            if method == DOPRI5 and fire != _CROSSING:
+                factor = MAX_FACTOR if err == 0.0 else min(MAX_FACTOR,
+                                                           SAFETY * err ** DP_ERROR_EXPONENT)
+                h_prop = max(h_prop, h * factor) if clipped else h * factor
+            t = t_new
+            for i in range(n):
+                y[i] = y_new[i]
+            if fire == _NO_EVENT:
+                project(t, y, mode, P, ACT)
+                for i in range(n):
+                    K[0, i] = K[6, i]
+                g0, gd0 = clutch_guard(mode, y, K[0], aux1, P)
+                gtol = guard_tolerance(mode, y, aux1, P)
+                if not armed and abs(g0) > gtol:
+                    armed = True
+                continue
 
         # ---- reset map of the clutch automaton
         kind = KIND_GRAZE
@@ -311,7 +522,6 @@ def advance(t, t_end, y, ms, P, ACT, S, h_io, grid, out, events, counters, ledge
                 kind = KIND_ENGAGE
                 mode = ENGAGED
         project(t, y, mode, P, ACT)
-        armed = False
         e = counters[C_EVENTS]
         events[e, E_T] = t
         events[e, E_MODE] = mode
@@ -322,6 +532,17 @@ def advance(t, t_end, y, ms, P, ACT, S, h_io, grid, out, events, counters, ledge
             counters[C_SWITCHES] += 1
         rhs(t, y, mode, P, ACT, K[0], aux0)
         g0, gd0 = clutch_guard(mode, y, K[0], aux0, P)
+        # half-open rule: disarmed only while the new guard is still inside its band; a graze
+        # leaves the guard where it was, at its root, so it must leave the band first
+        armed = kind != KIND_GRAZE and abs(g0) > guard_tolerance(mode, y, aux0, P)
+        if t > t_last_event:
+            t_last_event = t
+            stalled = 0
+        else:
+            stalled += 1
+            if stalled > MAX_EVENTS_AT_ONE_TIME:
+                counters[C_STATUS] = STATUS_ZENO
+                break
         if counters[C_EVENTS] >= events.shape[0]:
             counters[C_STATUS] = STATUS_EVENTS_FULL
             break

@@ -1,6 +1,5 @@
 """One sample row per output time: the columns of ``cvt-sim run --csv`` plus energy bookkeeping."""
-from cvt_ros.physics.compiled import kernel
-
+from ..physics.compiled import kernel
 from ..physics.layout import (
     AUX_CLUTCH_TORQUE,
     AUX_CONSTRAINT,

@@ -52,6 +52,11 @@ class RunResult:
         return self.samples[:, COL[name]]
 
 
+_FAILURES = {
+    H.STATUS_STEP_TOO_SMALL: 'step size underflow',
+    H.STATUS_NONFINITE: 'non-finite state',
+    H.STATUS_ZENO: 'clutch events without time advancing (Zeno)',
+}
 _KIND_NAMES = {0: 'release', 1: 'engage', 2: 'engage_impact', 3: 'graze'}
 
 
@@ -109,7 +114,7 @@ class Simulator:
         w1 = v['motor.speed'] if v['motor.model'] == 'constant_speed' else v['initial.crank_speed']
         self.y[L.OMEGA1] = w1
         self.ms = np.zeros(2, dtype=np.int64)
-        self.h_io = np.zeros(1)
+        self.h_io = np.zeros(2)
         self.counters = np.zeros(H.N_COUNTERS, dtype=np.int64)
         self.ledger = np.zeros(1)   # kinetic energy lost in impacts [J]
         self.energy_injected = 0.0  # energy put in by live parameter changes [J]
@@ -212,7 +217,7 @@ class Simulator:
             self._set_rocker_from_linkage()
         self._settle_clutch()
         self.energy_injected += self._energy() - e_before
-        self.h_io[0] = 0.0
+        self.h_io[:] = 0.0
         if target is not None:
             self.command_crank_length(target)
 
@@ -232,9 +237,9 @@ class Simulator:
                 self.switch_count += 1
         self.counters[H.C_EVENTS] = 0
         status = int(self.counters[H.C_STATUS])
-        if status in (H.STATUS_STEP_TOO_SMALL, H.STATUS_NONFINITE):
-            why = 'step size underflow' if status == H.STATUS_STEP_TOO_SMALL else 'non-finite state'
-            raise SimulationError(f"integration failed at t = {self.t:.9g} s: {why}")
+        if status in _FAILURES:
+            raise SimulationError(f"integration failed at t = {self.t:.9g} s: {_FAILURES[status]}"
+                                  f" (last clutch events: {switches[-3:]})")
         return switches, status
 
     def _advance_to(self, t_end, grid, out):

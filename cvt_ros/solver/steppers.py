@@ -12,13 +12,21 @@ import math
 
 import numpy as np
 
-from cvt_ros.physics.compiled import kernel
-
-from ..physics.dynamics import rhs
-from ..physics.layout import N_AUX, N_DYNAMIC
+from ..physics.compiled import inline_kernel, kernel
+from ..physics.dynamics import output_rhs, rhs
+from ..physics.layout import INPUT_DYNAMIC, N_AUX, N_DYNAMIC, N_OUTPUT_DYNAMIC, OUTPUT_STATES
 
 DOPRI5 = 0
 RK4 = 1
+
+# what a step integrates: the whole hybrid state, or only the disengaged output subsystem
+FULL = 0
+OUTPUT = 1
+INPUT = 2  # the whole state, output subsystem frozen (it is integrated apart, see hybrid.py)
+# components under error control
+ERR_FULL = np.arange(N_DYNAMIC)
+ERR_INPUT = np.array(INPUT_DYNAMIC)
+ERR_OUTPUT = np.arange(N_OUTPUT_DYNAMIC)
 
 # Dormand–Prince 5(4) (scipy RK45)
 DP_C = np.array([0.0, 1 / 5, 3 / 10, 4 / 5, 8 / 9, 1.0])
@@ -48,12 +56,23 @@ MIN_FACTOR = 0.2
 MAX_FACTOR = 10.0
 
 
+@inline_kernel
+def evaluate(kind, t, y, mode, P, ACT, dy, aux):
+    if kind == OUTPUT:
+        output_rhs(y, P, dy)
+    else:
+        rhs(t, y, mode, P, ACT, dy, aux)
+        if kind == INPUT:
+            for i in OUTPUT_STATES:
+                dy[i] = 0.0
+
+
 @kernel
-def dopri5_step(t, y, h, mode, P, ACT, K, y_new, ytmp, aux, rtol, atol):
+def dopri5_step(kind, t, y, h, mode, P, ACT, K, y_new, ytmp, aux, rtol, atol, err_idx):
     """One Dormand–Prince step from (t, y) with K[0] = f(t, y) given.
 
     Writes y_new and K[6] = f(t+h, y_new) (FSAL; ``aux`` then holds its auxiliaries) and returns
-    the RMS error norm scaled by atol + rtol·max(|y|, |y_new|) over the dynamic states.
+    the RMS error norm, scaled by atol + rtol·max(|y|, |y_new|), over the components err_idx.
     """
     n = y.shape[0]
     for s in range(1, 6):
@@ -62,22 +81,22 @@ def dopri5_step(t, y, h, mode, P, ACT, K, y_new, ytmp, aux, rtol, atol):
             for j in range(s):
                 acc += DP_A[s, j] * K[j, i]
             ytmp[i] = y[i] + h * acc
-        rhs(t + DP_C[s] * h, ytmp, mode, P, ACT, K[s], aux)
+        evaluate(kind, t + DP_C[s] * h, ytmp, mode, P, ACT, K[s], aux)
     for i in range(n):
         acc = 0.0
         for j in range(6):
             acc += DP_B[j] * K[j, i]
         y_new[i] = y[i] + h * acc
-    rhs(t + h, y_new, mode, P, ACT, K[6], aux)
+    evaluate(kind, t + h, y_new, mode, P, ACT, K[6], aux)
     total = 0.0
-    for i in range(N_DYNAMIC):
+    for i in err_idx:
         e = 0.0
         for j in range(7):
             e += DP_E[j] * K[j, i]
         scale = atol + rtol * max(abs(y[i]), abs(y_new[i]))
         r = h * e / scale
         total += r * r
-    return math.sqrt(total / N_DYNAMIC)
+    return math.sqrt(total / err_idx.shape[0])
 
 
 @kernel
@@ -99,7 +118,7 @@ def rk4_step(t, y, h, mode, P, ACT, K, y_new, ytmp, aux):
     return 0.0
 
 
-@kernel
+@inline_kernel
 def dense_state(method, theta, h, y0, y1, K, out):
     """State at t0 + θ·h (0 ≤ θ ≤ 1) from the last step's dense output."""
     n = y0.shape[0]
@@ -131,26 +150,27 @@ def dense_state(method, theta, h, y0, y1, K, out):
 
 
 @kernel
-def initial_step(t, y, mode, P, ACT, f0, rtol, atol, ytmp, ftmp):
+def initial_step(kind, t, y, mode, P, ACT, f0, rtol, atol, ytmp, ftmp, err_idx):
     """Hairer–Nørsett–Wanner starting step (as scipy's ``select_initial_step``), order 5."""
     aux = np.empty(N_AUX)
     d0 = 0.0
     d1 = 0.0
-    for i in range(N_DYNAMIC):
+    for i in err_idx:
         scale = atol + abs(y[i]) * rtol
         d0 += (y[i] / scale) ** 2
         d1 += (f0[i] / scale) ** 2
-    d0 = math.sqrt(d0 / N_DYNAMIC)
-    d1 = math.sqrt(d1 / N_DYNAMIC)
+    n_err = err_idx.shape[0]
+    d0 = math.sqrt(d0 / n_err)
+    d1 = math.sqrt(d1 / n_err)
     h0 = 1e-6 if (d0 < 1e-5 or d1 < 1e-5) else 0.01 * d0 / d1
     for i in range(y.shape[0]):
         ytmp[i] = y[i] + h0 * f0[i]
-    rhs(t + h0, ytmp, mode, P, ACT, ftmp, aux)
+    evaluate(kind, t + h0, ytmp, mode, P, ACT, ftmp, aux)
     d2 = 0.0
-    for i in range(N_DYNAMIC):
+    for i in err_idx:
         scale = atol + abs(y[i]) * rtol
         d2 += ((ftmp[i] - f0[i]) / scale) ** 2
-    d2 = math.sqrt(d2 / N_DYNAMIC) / h0
+    d2 = math.sqrt(d2 / n_err) / h0
     if d1 <= 1e-15 and d2 <= 1e-15:
         h1 = max(1e-6, h0 * 1e-3)
     else:
