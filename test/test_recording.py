@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import signal
+import struct
 import subprocess
 import sys
 import textwrap
@@ -395,7 +395,7 @@ def test_written_bag_read_with_rosbags(sample_bag: tuple[Path, list]) -> None:
         decoded = [(c.topic, t, reader.deserialize(raw, c.msgtype))
                    for c, t, raw in reader.messages()]
     assert [(topic, t) for topic, t, _ in decoded] == [(m[0], m[2]) for m in messages]
-    for (topic, _, got), (_, want, _, _) in zip(decoded, messages):
+    for (topic, _, got), (_, want, _, _) in zip(decoded, messages, strict=True):
         if topic == '/joint_states':
             assert got.name == want.name and got.header.frame_id == 'cvt'
             assert list(got.position) == list(want.position)
@@ -417,7 +417,7 @@ def test_written_bag_read_with_own_reader(sample_bag: tuple[Path, list]) -> None
     got = list(read_messages(path))
     assert [(m.topic, m.type_name, m.log_time_ns, m.publish_time_ns, m.message())
             for m in got] == [(t, TOPICS[t][0], lt, pt, msg) for t, msg, lt, pt in messages]
-    ratio = list(read_messages(path, topics=['/cvt/ratio']))
+    ratio = list(read_messages(path, topics='/cvt/ratio'))
     assert [m.message().data for m in ratio] == [m[1].data for m in messages
                                                   if m[0] == '/cvt/ratio']
     info = summary(path)
@@ -565,8 +565,8 @@ def test_disk_full_fails_once_then_drops_quietly(tmp_path: Path) -> None:
     assert result['raised'] == 1 and result['failed'] and result['finish'] == 'ok'
     assert 'File too large' in result['message'] and result['error'] == result['message']
     assert result['dropped'] == 20_000 - result['first'] - 1
-    with pytest.raises(RecordingReadError):
-        good = [m.message().data for m in read_messages(path)]
+    with pytest.raises(RecordingReadError, match='truncated'):
+        list(read_messages(path))
     good = [m.message().data for m in read_messages(path, strict=False)]
     assert good == [float(i) for i in range(len(good))] and len(good) > 100
     assert recover(path, tmp_path / 'full-recovered.mcap') == len(good)
@@ -621,6 +621,7 @@ def test_truncated_files_yield_prefix_and_recover(chunky_bag: tuple[Path, list, 
     path, originals, bounds = chunky_bag
     data = path.read_bytes()
     size = len(data)
+    header_end = 17 + struct.unpack_from('<Q', data, 9)[0]
     cuts = [8, 9, 30, bounds[0][0], bounds[0][0] + 20, bounds[2][1], bounds[2][1] + 5,
             bounds[len(bounds) // 2][1] - 1, bounds[-2][1], bounds[-1][0] + 3, size - 30,
             size - 1]
@@ -635,9 +636,16 @@ def test_truncated_files_yield_prefix_and_recover(chunky_bag: tuple[Path, list, 
             'summary' in str(error), str(error)
         complete_chunks = [n for start, end, n in bounds if end <= cut]
         assert len(got) >= (complete_chunks[-1] if complete_chunks else 0), cut
+        fixed = tmp_path / f'fixed-{cut}.mcap'
+        if cut < header_end:  # not even the MCAP header survived: nothing to summarise
+            assert got == []
+            with pytest.raises(RecordingReadError):
+                summary(damaged)
+            with pytest.raises(RecordingReadError):
+                recover(damaged, fixed)
+            continue
         info = summary(damaged)
         assert not info.complete and info.problems and info.message_count == len(got)
-        fixed = tmp_path / f'fixed-{cut}.mcap'
         assert recover(damaged, fixed) == len(got)
         recovered, error = _read_all(fixed)
         assert error is None and recovered == got
@@ -808,3 +816,27 @@ def test_signal_handler_finish_leaves_complete_file(tmp_path: Path, signum: int,
     assert len(got) == written
     counts = [m.message().data for m in got if m.topic == '/count']
     assert counts == [float(i) for i in range(len(counts))]
+
+
+EXIT_CHILD = '''
+import sys
+from cvt_ros.recording import BagWriter
+from std_msgs.msg import Float64
+writer = BagWriter(sys.argv[1])
+writer.add_topic('/count', Float64)
+for i in range(500):
+    writer.write('/count', Float64(data=float(i)), 1000 + i)
+if sys.argv[2] == 'raise':
+    raise RuntimeError('simulated crash of the node (not of the process)')
+'''
+
+
+@pytest.mark.parametrize('ending', ['return', 'raise'])
+def test_exit_without_finish_still_completes_file(tmp_path: Path, ending: str) -> None:
+    path = tmp_path / 'forgotten.mcap'
+    proc = subprocess.run([sys.executable, '-c', EXIT_CHILD, str(path), ending],
+                          env=_child_env(), capture_output=True, text=True, timeout=60)
+    assert proc.returncode == (0 if ending == 'return' else 1), proc.stderr
+    info = summary(path)  # the atexit hook finished the file
+    assert info.complete and info.message_count == 500
+    assert [m.message().data for m in read_messages(path)] == [float(i) for i in range(500)]

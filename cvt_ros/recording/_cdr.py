@@ -16,7 +16,8 @@ model (``wstring``, ``wchar``, ``long double``) make :func:`cdr_size` return ``N
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 __all__ = ['cdr_size']
 
@@ -96,7 +97,7 @@ def _class_sizer(cls: type) -> _Sizer:
         return cached  # type: ignore[return-value]
     try:
         names = list(cls.get_fields_and_field_types())
-        fields = [_field_sizer(n, t) for n, t in zip(names, cls.SLOT_TYPES)]
+        fields = [_field_sizer(n, t) for n, t in zip(names, cls.SLOT_TYPES, strict=True)]
     except (_Unsupported, AttributeError):
         _CLASS_SIZERS[cls] = None
         raise _Unsupported(cls.__name__) from None

@@ -136,21 +136,19 @@ def _dependencies(text: str, package: str) -> list[str]:
         token = match.group(1)
         if token in _PRIMITIVES:
             continue
+        if token == 'Header' and _read_interface_file(package, 'msg', 'Header', '.msg') is None:
+            token = 'std_msgs/Header'  # ROS 1 style shorthand
         deps.add(token if '/' in token else f'{package}/{token}')
     return sorted(deps)
 
 
-def _load_msg(ident: str) -> tuple[str, str, str]:
-    """Return (identifier actually used, package, text) of a dependency like 'pkg/Type'."""
+def _load_msg(ident: str) -> tuple[str, str]:
+    """Return (package, text) of a type like 'pkg/Type' or 'pkg/msg/Type'."""
     pkg, ns, name = _split(ident)
     text = _read_interface_file(pkg, ns, name, '.msg')
-    if text is None and ident.endswith('/Header') and ident != 'std_msgs/Header' and \
-            ident.count('/') == 1:
-        # ROS 1 style bare "Header" inside another package.
-        return _load_msg('std_msgs/Header')
     if text is None:
         raise MessageDefinitionError(f'no .msg definition found for {ident!r}')
-    return ident, pkg, text
+    return pkg, text
 
 
 @lru_cache(maxsize=256)
@@ -161,18 +159,12 @@ def _full_text(type_name: str, _prefix_path: str) -> str:
         if depth <= 0:
             raise MessageDefinitionError(
                 f'definition of {type_name!r} nests deeper than {_MAX_DEPTH} levels')
-        _, pkg, text = _load_msg(ident)
+        pkg, text = _load_msg(ident)
         result = text
         for dep in _dependencies(text, pkg):
-            if dep in seen:
-                continue
-            seen.add(dep)
-            used, _, _ = _load_msg(dep)
-            if used != dep:  # Header shorthand: record the real name once.
-                if used in seen:
-                    continue
-                seen.add(used)
-            result += '\n' + _DELIMITER + f'MSG: {used}\n' + append(used, depth - 1)
+            if dep not in seen:
+                seen.add(dep)
+                result += '\n' + _DELIMITER + f'MSG: {dep}\n' + append(dep, depth - 1)
         return result
 
     return append(type_name, _MAX_DEPTH)

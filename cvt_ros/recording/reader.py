@@ -281,6 +281,8 @@ def read_messages(path: str | os.PathLike[str], topics: Iterable[str] | None = N
     :class:`RecordingReadError` (``strict=True``) or issued as :class:`RecordingReadWarning`.
     A file that cannot be opened raises :class:`RecordingReadError` immediately.
     """
+    if isinstance(topics, str):
+        topics = [topics]
     wanted = None if topics is None else set(topics)
     scan = _Scan(path)
     count = 0

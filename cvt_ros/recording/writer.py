@@ -5,32 +5,36 @@ schema per type, ``cdr`` channels carrying ``offered_qos_profiles`` and ``topic_
 metadata, a summary (chunk + message indexes, statistics) and a ``rosbag2`` metadata record whose
 ``serialized_metadata`` is the bag metadata YAML. ``ros2 bag play/info file.mcap`` accept it.
 
-Crash safety: messages are grouped into small chunks (64 KiB by default) and every chunk is
-closed and handed to the OS at least every ``flush_interval`` seconds of wall time (a background
-thread covers idle periods), so after SIGKILL everything written more than ``flush_interval``
-earlier sits in complete, CRC-checked chunks; :func:`cvt_ros.recording.recover` turns such a file
-into a finished one. Data reaches the OS, not necessarily the platter: ``finish()`` fsyncs.
+Design: :meth:`BagWriter.write` only serializes the message and appends it to a queue; one
+background thread owns the ``mcap`` writer and the file and does all I/O. So ``write`` never
+blocks on the disk, and a signal handler (which Python always runs in the main thread) can never
+interrupt the MCAP bookkeeping half-way: :meth:`BagWriter.finish` just queues a "finish" and
+waits for the thread. If the process exits without ``finish()`` (exception, ``sys.exit`` from a
+handler), an ``atexit`` hook finishes the file.
 
-Signals: :meth:`BagWriter.finish` may be called from a signal handler (SIGINT/SIGTERM) while the
-main thread is inside :meth:`BagWriter.write`. The parts that modify the MCAP writer run with the
-usual termination signals blocked, so a handler (or a KeyboardInterrupt) never runs half-way
-through them.
+Crash safety: messages go into small chunks (64 KiB by default) and the thread closes the current
+chunk and hands it to the OS once the oldest unwritten message is ``0.75 * flush_interval`` old
+(it polls every ``flush_interval / 4``), so after SIGKILL everything written more than
+``flush_interval`` earlier sits in complete, CRC-checked chunks; :func:`cvt_ros.recording.recover`
+turns such a file into a finished one. That protects against a process crash, not a power cut:
+only ``finish()`` fsyncs.
 
-Errors: a bad path raises :class:`RecordingError` from the constructor. An I/O error later
-(disk full...) raises :class:`RecordingError` once, from the call that hit it (or, if the
-background flush hit it, from the next call); the writer is then *failed*: further calls return
-without raising and :attr:`BagWriter.failed` / :attr:`BagWriter.error` tell what happened.
+Errors: a bad path raises :class:`RecordingError` from the constructor. An I/O error later (disk
+full...) is raised as :class:`RecordingError` once, by the next call of ``write``/``add_topic``/
+``flush``/``finish``; the writer is then *failed*: further calls return without raising and
+:attr:`BagWriter.failed` / :attr:`BagWriter.error` tell what happened.
 """
 
 from __future__ import annotations
 
-import contextlib
+import atexit
 import errno
 import os
-import signal
 import threading
 import time
-from collections.abc import Iterator, Mapping
+import weakref
+from collections import deque
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -51,25 +55,8 @@ ROS_DISTRO = 'jazzy'
 
 _OPEN, _CLOSED, _FAILED = 'open', 'closed', 'failed'
 _RECORD_OVERHEAD = 31  # opcode + length + message header bytes (9 + 22)
-# Signals whose Python handlers must not run in the middle of an MCAP update.
-_DEFERRED_SIGNALS = frozenset(
-    getattr(signal, name) for name in
-    ('SIGINT', 'SIGTERM', 'SIGHUP', 'SIGQUIT', 'SIGUSR1', 'SIGUSR2', 'SIGALRM')
-    if hasattr(signal, name))
-
-
-@contextlib.contextmanager
-def _signals_deferred() -> Iterator[None]:
-    """Block termination signals in the main thread for the duration (no-op elsewhere)."""
-    if not hasattr(signal, 'pthread_sigmask') or \
-            threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, _DEFERRED_SIGNALS)
-    try:
-        yield
-    finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+# Queue commands (first tuple element).
+_MSG, _SCHEMA, _CHANNEL, _METADATA, _FLUSH, _FINISH = range(6)
 
 
 @dataclass
@@ -80,7 +67,16 @@ class _Topic:
     serialization_format: str
     qos_yaml: str
     type_hash: str
-    count: int = 0
+    count: int = 0  # messages written; only the writer thread changes it
+
+
+def _finish_at_exit(ref: weakref.ReferenceType[BagWriter]) -> None:
+    writer = ref()
+    if writer is not None:
+        try:
+            writer.finish()
+        except RecordingError:
+            pass  # already reported (or nobody left to report it to)
 
 
 class BagWriter:
@@ -98,7 +94,7 @@ class BagWriter:
 
     Log times are int64 nanoseconds (ROS time of reception, usually ``node.get_clock().now()``)
     and must be non-decreasing: rosbag2's player and our crash recovery rely on file order being
-    time order. Thread-safe; usable as a context manager (``finish()`` on exit).
+    time order. All methods are thread-safe; usable as a context manager (``finish()`` on exit).
     """
 
     def __init__(self, path: str | os.PathLike[str], *, chunk_size: int = DEFAULT_CHUNK_SIZE,
@@ -113,23 +109,29 @@ class BagWriter:
             raise ValueError(f'flush_interval must be positive or None, got {flush_interval!r}')
         self._path = os.fspath(path)
         self._chunk_size = int(chunk_size)
-        self._flush_interval = flush_interval
-        # Flush when the oldest unflushed data is this old; the thread polls at interval / 4,
-        # so data is flushed at most flush_interval after it was written.
         self._flush_after = None if flush_interval is None else 0.75 * flush_interval
+        self._poll = None if flush_interval is None else flush_interval / 4
         self._clamp = bool(clamp_log_time)
         self._custom_data = {str(k): str(v) for k, v in (custom_data or {}).items()}
+        # Producer side (any thread), guarded by _lock.
         self._lock = threading.RLock()
+        self._queue: deque[tuple] = deque()  # append/popleft are atomic: no lock for the thread
+        self._wake = threading.Event()
+        self._done = threading.Event()  # set when the writer thread has exited
         self._state = _OPEN
+        self._finish_requested = False
         self._error: RecordingError | None = None
         self._error_reported = False
         self._topics: dict[str, _Topic] = {}
         self._schema_ids: dict[tuple[str, str, bytes], int] = {}
         self._class_types: dict[type, str] = {}
-        self._pending: list[tuple[_Topic, int, int, bytes]] = []
-        self._pending_bytes = 0
-        self._dirty_since: float | None = None
+        self._next_schema_id = 1
+        self._next_channel_id = 1
+        self._bytes_since_wake = 0
+        self._dirty_since: float | None = None  # monotonic time of the oldest unflushed message
         self._last_log_time = 0
+        # Writer-thread side.
+        self._channels: dict[int, _Topic] = {}
         self._message_count = 0
         self._start_ns: int | None = None
         self._end_ns = 0
@@ -151,12 +153,10 @@ class BagWriter:
             self._close_quietly()
             raise RecordingError(
                 f'cannot write recording {self._path}: {exc.strerror or exc}') from exc
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-        if flush_interval is not None:
-            self._thread = threading.Thread(target=self._flush_loop, name='BagWriter-flush',
-                                            daemon=True)
-            self._thread.start()
+        self._thread = threading.Thread(target=self._run, name='BagWriter', daemon=True)
+        self._thread.start()
+        self._atexit = _make_atexit_hook(self)
+        atexit.register(self._atexit)
 
     # ------------------------------------------------------------------ properties
     @property
@@ -176,18 +176,18 @@ class BagWriter:
 
     @property
     def closed(self) -> bool:
-        """True after :meth:`finish` (or after a failure)."""
+        """True after :meth:`finish` has completed, or after a failure."""
         return self._state != _OPEN
 
     @property
     def message_count(self) -> int:
-        """Messages accepted so far (written or waiting in the current chunk)."""
-        return self._message_count + len(self._pending)
+        """Messages in the file so far (lags :meth:`write` until the thread catches up)."""
+        return self._message_count
 
     @property
     def topics(self) -> dict[str, str]:
         """Registered topics -> type names."""
-        return {t.name: t.type_name for t in self._topics.values()}
+        return {t.name: t.type_name for t in list(self._topics.values())}
 
     # ------------------------------------------------------------------ public API
     def add_topic(self, topic: str, type_name: str | type, qos: Any = None) -> int:
@@ -219,15 +219,16 @@ class BagWriter:
 
     def write(self, topic: str, message: Any, log_time_ns: int,
               publish_time_ns: int | None = None) -> bool:
-        """Append one message; return True if it was accepted.
+        """Queue one message for writing; return True if it was accepted.
 
         ``message`` is an rclpy message (serialized with ``rclpy.serialization``, cut to its
         exact CDR length, see :mod:`cvt_ros.recording._cdr`) or serialized CDR ``bytes`` (written
         as given). ``log_time_ns``: reception time, int64 ns, non-decreasing.
-        ``publish_time_ns`` defaults to ``log_time_ns``. Returns False without raising when the
-        writer is closed or failed (the first I/O error is raised as :class:`RecordingError`).
+        ``publish_time_ns`` defaults to ``log_time_ns``. Never blocks on I/O. Returns False
+        without raising when the writer is closed or failed (an I/O error is raised once as
+        :class:`RecordingError`).
         """
-        if self._state != _OPEN:
+        if self._state != _OPEN or self._finish_requested:
             self._raise_unreported()
             return False
         entry = self._topics.get(topic)
@@ -239,7 +240,8 @@ class BagWriter:
         if log < 0 or publish < 0:
             raise LogTimeError(f'negative time on {topic!r}: log {log}, publish {publish} ns')
         with self._lock:
-            if self._state != _OPEN:
+            if self._state != _OPEN or self._finish_requested:
+                self._raise_unreported()
                 return False
             if log < self._last_log_time:
                 if not self._clamp:
@@ -248,58 +250,37 @@ class BagWriter:
                         f'{self._last_log_time} ns (log times must be non-decreasing; '
                         'use clamp_log_time=True to clamp)')
                 log = self._last_log_time
-            now = time.monotonic()
-            self._pending.append((entry, log, publish, data))  # atomic w.r.t. signal handlers
+            self._enqueue((_MSG, entry, log, publish, data), len(data) + _RECORD_OVERHEAD)
             self._last_log_time = log
-            self._pending_bytes += len(data) + _RECORD_OVERHEAD
-            if self._dirty_since is None:
-                self._dirty_since = now
-            flush_due = self._flush_after is not None and now - self._dirty_since >= \
-                self._flush_after
-            if flush_due or self._pending_bytes >= self._chunk_size:
-                self._drain(flush=flush_due)
         return True
 
     def flush(self) -> None:
-        """Close the current chunk and hand everything written so far to the OS."""
+        """Close the current chunk and hand everything written so far to the OS (blocks)."""
+        done = threading.Event()
         with self._lock:
-            if self._state != _OPEN:
+            if self._state != _OPEN or self._finish_requested:
                 self._raise_unreported()
                 return
-            self._drain(flush=True)
+            self._queue.append((_FLUSH, done))
+            self._wake.set()
+        while not done.wait(0.1) and not self._done.is_set():
+            pass
+        self._raise_unreported()
 
     def finish(self) -> None:
         """Write the summary and the rosbag2 metadata, fsync and close. Idempotent.
 
-        Safe to call from a signal handler. On a failed writer it only releases the file (and
-        raises the failure if it has not been reported yet).
+        Blocks until the file is complete. Safe to call from a signal handler. On a failed
+        writer it returns at once (raising the failure if it has not been reported yet).
         """
-        with self._lock, _signals_deferred():
-            if self._state == _CLOSED:
-                return
-            if self._state == _FAILED:
-                self._close_quietly()
-                self._stop.set()
-                self._raise_unreported()
-                return
-            try:
-                self._drain(flush=False)
-                if self._state != _OPEN:
-                    return
-                self._mcap.add_metadata(
-                    'rosbag2', {'serialized_metadata': self.bag_metadata_yaml()})
-                self._mcap.finish()
-                self._file.flush()
-                try:
-                    os.fsync(self._file.fileno())
-                except OSError as exc:
-                    if exc.errno not in (errno.EINVAL, errno.EOPNOTSUPP):  # not a regular file
-                        raise
-                self._file.close()
-            except (OSError, ValueError) as exc:
-                self._fail(exc, report=True)
-            self._state = _CLOSED
-            self._stop.set()
+        with self._lock:
+            if not self._finish_requested and self._state == _OPEN:
+                self._finish_requested = True
+                self._queue.append((_FINISH,))
+                self._wake.set()
+        self._done.wait()
+        atexit.unregister(self._atexit)
+        self._raise_unreported()
 
     def close(self) -> None:
         """Alias of :meth:`finish`."""
@@ -312,7 +293,7 @@ class BagWriter:
         self.finish()
 
     def bag_metadata(self) -> dict[str, Any]:
-        """The rosbag2 bag metadata (version 9) of what was written so far, as a dict."""
+        """The rosbag2 bag metadata (version 9) of what is in the file so far, as a dict."""
         base = os.path.basename(self._path)
         start = self._start_ns if self._start_ns is not None else 0
         duration = self._end_ns - start if self._start_ns is not None else 0
@@ -334,7 +315,7 @@ class BagWriter:
                     },
                     'message_count': t.count,
                 }
-                for t in self._topics.values()
+                for t in list(self._channels.values())
             ],
             'compression_format': '',
             'compression_mode': '',
@@ -353,7 +334,17 @@ class BagWriter:
         """:meth:`bag_metadata` as rosbag2 serialises it (yaml-cpp ``Dump``, no root key)."""
         return _yaml.dump(self.bag_metadata())
 
-    # ------------------------------------------------------------------ internals
+    # ------------------------------------------------------------------ producer internals
+    def _enqueue(self, command: tuple, size: int) -> None:
+        """Append under _lock; wake the thread when a chunk's worth is waiting."""
+        self._queue.append(command)
+        if self._dirty_since is None:
+            self._dirty_since = time.monotonic()
+        self._bytes_since_wake += size
+        if self._bytes_since_wake >= self._chunk_size:
+            self._bytes_since_wake = 0
+            self._wake.set()
+
     def _serialize(self, entry: _Topic, message: Any) -> bytes:
         if isinstance(message, (bytes, bytearray, memoryview)):
             return bytes(message)
@@ -376,109 +367,149 @@ class BagWriter:
 
     def _add_channel(self, topic: str, type_name: str, schema_encoding: str, schema_data: bytes,
                      message_encoding: str, metadata: Mapping[str, str]) -> int:
-        """Register schema (deduplicated) and channel; used by add_topic and recover."""
-        with self._lock, _signals_deferred():
-            if self._state != _OPEN:
+        """Queue schema (deduplicated) and channel registration; used by add_topic and recover.
+
+        Ids are assigned here in the order the mcap writer will assign them (1, 2, ...).
+        """
+        with self._lock:
+            if self._state != _OPEN or self._finish_requested:
                 self._raise_unreported()
                 return 0
             existing = self._topics.get(topic)
             if existing is not None and existing.type_name == type_name:
                 return existing.channel_id
-            try:
-                key = (type_name, schema_encoding, schema_data)
-                schema_id = self._schema_ids.get(key)
-                if schema_id is None:
-                    schema_id = self._mcap.register_schema(type_name, schema_encoding,
-                                                           schema_data)
-                    self._schema_ids[key] = schema_id
-                channel_id = self._mcap.register_channel(topic, message_encoding, schema_id,
-                                                         dict(metadata))
-            except (OSError, ValueError) as exc:
-                self._fail(exc, report=True)
-                return 0
-            self._topics[topic] = _Topic(
-                topic, type_name, channel_id, message_encoding,
-                metadata.get('offered_qos_profiles', ''), metadata.get('topic_type_hash', ''))
+            key = (type_name, schema_encoding, schema_data)
+            schema_id = self._schema_ids.get(key)
+            if schema_id is None:
+                schema_id = self._next_schema_id
+                self._next_schema_id += 1
+                self._schema_ids[key] = schema_id
+                self._queue.append((_SCHEMA, schema_id, type_name, schema_encoding, schema_data))
+            channel_id = self._next_channel_id
+            self._next_channel_id += 1
+            entry = _Topic(topic, type_name, channel_id, message_encoding,
+                           metadata.get('offered_qos_profiles', ''),
+                           metadata.get('topic_type_hash', ''))
+            self._queue.append((_CHANNEL, entry, schema_id, dict(metadata)))
+            self._topics[topic] = entry
             return channel_id
 
     def _write_raw(self, topic: str, data: bytes, log_time_ns: int, publish_time_ns: int) -> None:
-        """Append without the monotonic check (recovery copies times as found)."""
+        """Queue without the monotonic check (recovery copies times as found)."""
         with self._lock:
-            if self._state != _OPEN:
-                return
-            self._pending.append((self._topics[topic], log_time_ns, publish_time_ns, data))
-            self._pending_bytes += len(data) + _RECORD_OVERHEAD
-            if self._pending_bytes >= self._chunk_size:
-                self._drain(flush=False)
+            if self._state == _OPEN and not self._finish_requested:
+                self._enqueue((_MSG, self._topics[topic], log_time_ns, publish_time_ns, data),
+                              len(data) + _RECORD_OVERHEAD)
 
     def _add_metadata_raw(self, name: str, data: Mapping[str, str]) -> None:
-        with self._lock, _signals_deferred():
-            if self._state != _OPEN:
-                return
-            try:
-                self._mcap.add_metadata(name, dict(data))
-            except (OSError, ValueError) as exc:
-                self._fail(exc, report=True)
-
-    def _drain(self, *, flush: bool, report: bool = True) -> None:
-        """Move pending messages into the MCAP writer; optionally close the chunk and flush.
-
-        Runs with the lock held and termination signals blocked, so the MCAP writer's state is
-        never left half-updated.
-        """
-        with _signals_deferred():
-            if self._state != _OPEN:
-                return
-            pending, self._pending = self._pending, []
-            self._pending_bytes = 0
-            try:
-                for entry, log, publish, data in pending:
-                    entry.count += 1
-                    self._message_count += 1
-                    if self._start_ns is None or log < self._start_ns:
-                        self._start_ns = log
-                    if log > self._end_ns:
-                        self._end_ns = log
-                    self._mcap.add_message(entry.channel_id, log, data, publish,
-                                           sequence=entry.count & 0xFFFFFFFF)
-                if flush:
-                    self._mcap.flush()
-                    self._dirty_since = None
-            except (OSError, ValueError) as exc:
-                self._fail(exc, report=report)
-
-    def _flush_loop(self) -> None:
-        assert self._flush_interval is not None and self._flush_after is not None
-        period = self._flush_interval / 4
-        while not self._stop.wait(period):
-            with self._lock:
-                if self._state != _OPEN:
-                    return
-                since = self._dirty_since
-                if since is not None and time.monotonic() - since >= self._flush_after:
-                    self._drain(flush=True, report=False)
-
-    def _fail(self, exc: BaseException, *, report: bool) -> None:
-        self._state = _FAILED
-        reason = getattr(exc, 'strerror', None) or str(exc) or type(exc).__name__
-        self._error = RecordingError(
-            f'recording to {self._path} stopped: {reason}; later messages are dropped')
-        self._error.__cause__ = exc
-        self._pending = []
-        self._close_quietly()
-        if hasattr(self, '_stop'):
-            self._stop.set()
-        if report:
-            self._error_reported = True
-            raise self._error
+        with self._lock:
+            if self._state == _OPEN and not self._finish_requested:
+                self._queue.append((_METADATA, name, dict(data)))
 
     def _raise_unreported(self) -> None:
-        if self._state == _FAILED and not self._error_reported and self._error is not None:
-            self._error_reported = True
-            raise self._error
+        if self._state != _FAILED or self._error_reported:
+            return
+        with self._lock:
+            if not self._error_reported and self._error is not None:
+                self._error_reported = True
+                raise self._error
+
+    # ------------------------------------------------------------------ writer thread
+    def _run(self) -> None:
+        try:
+            while self._state == _OPEN:
+                self._wake.wait(self._poll)
+                self._wake.clear()
+                self._process()
+        except Exception as exc:  # noqa: BLE001 - any failure stops the recording, reported once
+            self._fail(exc)
+        finally:
+            if self._state == _OPEN:  # defensive: never leave waiters hanging
+                self._state = _FAILED
+            self._queue.clear()
+            self._done.set()
+
+    def _process(self) -> None:
+        """Write everything queued; close the chunk if a flush is due; finish if asked."""
+        flush = False
+        since = self._dirty_since
+        if since is not None and self._flush_after is not None and \
+                time.monotonic() - since >= self._flush_after:
+            flush = True
+            self._dirty_since = None  # reset *before* draining: later messages set it again
+        flushed: list[threading.Event] = []
+        finish = False
+        queue, mcap = self._queue, self._mcap
+        # Take only what is queued now, so a busy producer cannot keep us from flushing.
+        for _ in range(len(queue)):
+            command = queue.popleft()
+            kind = command[0]
+            if kind == _MSG:
+                _, entry, log, publish, data = command
+                entry.count += 1
+                self._message_count += 1
+                if self._start_ns is None or log < self._start_ns:
+                    self._start_ns = log
+                if log > self._end_ns:
+                    self._end_ns = log
+                mcap.add_message(entry.channel_id, log, data, publish,
+                                 sequence=entry.count & 0xFFFFFFFF)
+            elif kind == _SCHEMA:
+                _, schema_id, name, encoding, data = command
+                if mcap.register_schema(name, encoding, data) != schema_id:
+                    raise RuntimeError('internal error: schema id mismatch')
+            elif kind == _CHANNEL:
+                _, entry, schema_id, metadata = command
+                if mcap.register_channel(entry.name, entry.serialization_format, schema_id,
+                                         metadata) != entry.channel_id:
+                    raise RuntimeError('internal error: channel id mismatch')
+                self._channels[entry.channel_id] = entry
+            elif kind == _METADATA:
+                mcap.add_metadata(command[1], command[2])
+            elif kind == _FLUSH:
+                flush = True
+                flushed.append(command[1])
+            elif kind == _FINISH:
+                finish = True
+                break
+        if finish:
+            mcap.add_metadata('rosbag2', {'serialized_metadata': self.bag_metadata_yaml()})
+            mcap.finish()
+            self._file.flush()
+            try:
+                os.fsync(self._file.fileno())
+            except OSError as exc:
+                if exc.errno not in (errno.EINVAL, errno.EOPNOTSUPP):  # not a regular file
+                    raise
+            self._file.close()
+            self._state = _CLOSED
+        elif flush:
+            mcap.flush()  # close the chunk, write it and its message index, flush the file
+        for event in flushed:
+            event.set()
+        if queue:
+            self._wake.set()
+
+    def _fail(self, exc: BaseException) -> None:
+        reason = getattr(exc, 'strerror', None) or str(exc) or type(exc).__name__
+        error = RecordingError(
+            f'recording to {self._path} stopped: {reason}; later messages are dropped')
+        error.__cause__ = exc
+        self._error = error
+        self._state = _FAILED
+        self._close_quietly()
 
     def _close_quietly(self) -> None:
         try:
             self._file.close()  # closes the descriptor even if flushing the buffer fails
         except (OSError, ValueError):
             pass
+
+
+def _make_atexit_hook(writer: BagWriter) -> Callable[[], None]:
+    """An exit hook that holds the writer only weakly (a finished writer can be collected)."""
+    ref = weakref.ref(writer)
+
+    def hook() -> None:
+        _finish_at_exit(ref)
+    return hook
