@@ -119,9 +119,15 @@ PHYSICS_PARAMETERS = (
     _spec('solver.method', 'dopri5', '-',
           'dopri5 (adaptive, event-located) | rk4 (fixed step, events located inside the step)',
           choices=('dopri5', 'rk4')),
-    _spec('solver.rtol', 1e-8, '-', 'relative tolerance of dopri5', low=1e-14, high=1e-2),
-    _spec('solver.atol', 1e-10, '-', 'absolute tolerance of dopri5', low=1e-16, high=1.0),
+    # defaults: φ4 within ~1e-7 (relative) of a 1e-12 reference after 10 s of the paper scene,
+    # switch times within ~1e-7 s; rtol 1e-8 brings the switch times within 1e-9 s (BENCHMARKS.md)
+    _spec('solver.rtol', 2e-6, '-', 'relative tolerance of dopri5', low=1e-14, high=1e-2),
+    _spec('solver.atol', 2e-8, '-', 'absolute tolerance of dopri5', low=1e-16, high=1.0),
     _spec('solver.max_step', 0.01, 's', 'largest step of dopri5', low=0.0, low_open=True),
+    _spec('solver.output_subsystem', 'exact', '-',
+          'exact: the open clutch\'s linear output (J3, shaft, J4) is solved in closed form; '
+          'integrate: on its own adaptive clock (always so for a quadratic load)',
+          choices=('exact', 'integrate')),
     _spec('solver.fixed_step', 2e-4, 's',
           'largest sub-step of rk4 (the step is refined further if the shaft mode needs it)',
           low=0.0, low_open=True),

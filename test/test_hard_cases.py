@@ -23,7 +23,8 @@ def test_scene_runs_to_the_end_finite_and_balanced(name):
     result = sim.run(3.0, 1e-3)
     assert result.samples.shape[0] == 3001
     assert np.all(np.isfinite(result.samples))
-    assert result.energy['relative_residual'] < 1e-6
+    # the balance is integrated with the state: it closes to the order of the tolerance
+    assert result.energy['relative_residual'] < 5.0 * sim.values['solver.rtol']
     # the crank keeps turning near synchronous speed (induction motor, loads it can carry)
     assert 100.0 < np.mean(result.column('omega1')[-500:]) < 158.0
     # in steady state two switches per crank turn (engage, release), however grazing or
@@ -125,6 +126,6 @@ def test_fast_crank_change_while_engaged_is_smooth_and_balanced():
     sim.command_crank_length(0.06)   # full stroke in ~0.06 s, starting while engaged
     result = sim.run(0.5, 1e-4)
     assert result.column('crank_length')[-1] == pytest.approx(0.06)
-    assert result.energy['relative_residual'] < 1e-7
+    assert result.energy['relative_residual'] < 5.0 * sim.values['solver.rtol']
     assert abs(result.energy['work_actuator']) > 0.0
     assert np.all(np.abs(np.diff(result.column('omega2'))) < 5.0)  # no velocity jumps

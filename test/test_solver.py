@@ -25,15 +25,48 @@ def paper_reference():
     return sim.y.copy(), [s.t for s in switches if s.kind != 'graze']
 
 
-def test_scipy_and_compiled_solver_agree_on_switch_times_and_state():
+@pytest.mark.parametrize('rtol, switch_error, state_error', [
+    (1e-8, 1e-9, 1e-8),      # switch times to 1e-9 s
+    (None, 1e-6, 1e-6),      # default settings
+])
+def test_scipy_and_compiled_solver_agree_on_switch_times_and_state(rtol, switch_error,
+                                                                  state_error):
     ref = solve_reference(PAPER, 1.0, rtol=1e-12, atol=1e-14)
-    sim = Simulator(PAPER)  # default settings
+    values = PAPER if rtol is None else scene(solver__rtol=rtol, solver__atol=rtol * 1e-2)
+    sim = Simulator(values)
     switches = [s.t for s in sim.advance(1.0) if s.kind != 'graze']
     assert len(switches) == len(ref.switch_times) > 40
-    # switch times located to 1e-9 s at default accuracy
-    assert np.max(np.abs(np.array(switches) - ref.switch_times)) < 1e-9
-    assert sim.y[6] == pytest.approx(ref.y[6], rel=1e-8)      # φ4
-    assert sim.y[7] == pytest.approx(ref.y[7], rel=1e-6)      # ω4
+    assert np.max(np.abs(np.array(switches) - ref.switch_times)) < switch_error
+    assert sim.y[6] == pytest.approx(ref.y[6], rel=state_error)      # φ4
+    assert sim.y[7] == pytest.approx(ref.y[7], rel=state_error * 100)  # ω4
+
+
+@pytest.mark.parametrize('rtol', [PAPER['solver.rtol'], 1e-10])
+def test_located_switches_sit_on_the_guard_zero(rtol):
+    # the root is found on the dense output to 1e-13 s; the state there then comes from a true
+    # step, which differs from the interpolant by about the local tolerance
+    sim = Simulator(scene(solver__rtol=rtol, solver__atol=rtol * 1e-2))
+    switches = [s for s in sim.advance(2.0) if s.kind != 'graze']
+    assert {s.kind for s in switches} == {'engage', 'release'}
+    for s in switches:
+        if s.kind == 'release':    # clutch torque [N·m]; torque scale 40 N·m
+            assert abs(s.value) < 100.0 * rtol * 40.0
+        else:                      # slip [rad/s]; speed scale 50 rad/s
+            assert abs(s.value) < 10.0 * rtol * 50.0
+
+
+def test_exact_and_integrated_output_subsystem_agree():
+    runs = {}
+    for how in ('exact', 'integrate'):
+        sim = Simulator(scene(solver__output_subsystem=how, solver__rtol=1e-10,
+                              solver__atol=1e-12))
+        switches = [s.t for s in sim.advance(2.0) if s.kind != 'graze']
+        runs[how] = (sim.sample(), switches)
+    (ex, sw_e), (it, sw_i) = runs['exact'], runs['integrate']
+    assert len(sw_e) == len(sw_i) > 90
+    assert np.max(np.abs(np.subtract(sw_e, sw_i))) < 1e-9
+    assert ex[4] == pytest.approx(it[4], rel=1e-10)
+    assert ex[8] == pytest.approx(it[8], rel=1e-8)
 
 
 def test_default_settings_meet_1e_6_on_phi4_after_10_s():

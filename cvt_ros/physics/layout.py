@@ -75,7 +75,9 @@ P_FORMULATION = 21
 P_RIGID = 22      # 1.0 when c = inf (J3 and J4 lumped, θ ≡ 0)
 P_BAUMGARTE = 23  # constraint stabilization rate for the paper formulation [1/s]
 P_TORQUE_SCALE = 24  # a torque typical of the scene [N·m], sets the clutch torque event tolerance
-N_PARAMS = 25
+P_LINEAR_OUTPUT = 25  # 1.0: the disengaged output subsystem is linear and solved exactly
+P_OUTPUT_RATE = 26    # its fastest rate max|λ| [1/s]: how densely the slip is watched
+N_PARAMS = 27
 
 MOTOR_INDUCTION = 0
 MOTOR_CONSTANT_TORQUE = 1

@@ -27,6 +27,7 @@ from ..physics.clutch import (
 from ..physics.compiled import inline_kernel, kernel
 from ..physics.drives import next_actuator_break
 from ..physics.dynamics import (
+    disengaged_output_rates,
     engage_with_impact,
     finite_state,
     output_rhs,
@@ -43,9 +44,14 @@ from ..physics.layout import (
     OMEGA3,
     OUTPUT_STATES,
     P_J3,
+    P_LINEAR_OUTPUT,
+    P_OUTPUT_RATE,
     P_RIGID,
     Z_OMEGA3,
+    Z_OMEGA4,
+    Z_TWIST,
 )
+from ..physics.output_exact import modal_coordinates, output_at
 from .output import write_sample
 from .steppers import (
     DOPRI5,
@@ -81,7 +87,8 @@ C_EVENTS = 3
 C_STATUS = 4
 C_SWITCHES = 5
 C_SUBSTEPS = 6
-N_COUNTERS = 7
+C_ENGAGED_STEPS = 7
+N_COUNTERS = 8
 
 STATUS_OK = 0
 STATUS_EVENTS_FULL = 1
@@ -97,6 +104,7 @@ E_VALUE = 3
 N_EVENT_COLUMNS = 4
 
 MAX_EVENTS_AT_ONE_TIME = 8
+EXACT_PHASE_STEP = 0.75  # [rad] of the output's fastest mode between two looks at the slip
 
 _NO_EVENT = 0
 _CROSSING = 1
@@ -119,33 +127,44 @@ def _guard_at(method, theta, t, h, y0, y1, K, mode, P, ACT, ytmp, dytmp, auxtmp)
 
 
 @inline_kernel
-def _combine(sigma, t, h, y0, K, tau, hs, z0, Ko, ycomb, ztmp):
+def _output_state(exact, sigma, t, tau, hs, z0, clock, P, ztmp, with_work):
+    """Output subsystem at tau + σ·hs: the exact solution from the step start t (exact), or the
+    dense output of the sub-step [tau, tau+hs] that started at z0."""
+    Ko, zs, LIN, W = clock
+    if exact:
+        output_at(tau + sigma * hs - t, zs, P, LIN, W, ztmp, with_work)
+    else:
+        dense_state(DOPRI5, sigma, hs, z0, z0, Ko, ztmp)
+
+
+@inline_kernel
+def _combine(exact, sigma, t, h, y0, K, tau, hs, z0, clock, P, ycomb, ztmp, with_work):
     """The full state at tau + σ·hs inside a split step: the input subsystem from the main
-    step's dense output, the output subsystem from the sub-step's."""
+    step's dense output, the output subsystem from _output_state."""
     tt = tau + sigma * hs
     dense_state(DOPRI5, (tt - t) / h, h, y0, y0, K, ycomb)
-    dense_state(DOPRI5, sigma, hs, z0, z0, Ko, ztmp)
+    _output_state(exact, sigma, t, tau, hs, z0, clock, P, ztmp, with_work)
     for i in range(N_OUTPUT):
         ycomb[OUTPUT_STATES[i]] = ztmp[i]
     return tt
 
 
 @inline_kernel
-def _split_slip(sigma, t, h, y0, K, tau, hs, z0, Ko, P, ACT, ycomb, ztmp):
+def _split_slip(exact, sigma, t, h, y0, K, tau, hs, z0, clock, P, ACT, ycomb, ztmp):
     """Slip s = ω3 − v at tau + σ·hs inside a split step [rad/s]."""
-    tt = _combine(sigma, t, h, y0, K, tau, hs, z0, Ko, ycomb, ztmp)
+    tt = _combine(exact, sigma, t, h, y0, K, tau, hs, z0, clock, P, ycomb, ztmp, False)
     return ycomb[OMEGA3] - rocker_speed(tt, ycomb, P, ACT)
 
 
 @inline_kernel
-def _guard_value(split, method, theta, t, h, y0, y1, K, tau, hs, z0, Ko, mode, P, ACT, ytmp,
-                 dytmp, auxtmp, ztmp):
+def _guard_value(split, exact, method, theta, t, h, y0, y1, K, tau, hs, z0, clock, mode, P, ACT,
+                 ytmp, dytmp, auxtmp, ztmp):
     if split:
-        return _split_slip(theta, t, h, y0, K, tau, hs, z0, Ko, P, ACT, ytmp, ztmp)
+        return _split_slip(exact, theta, t, h, y0, K, tau, hs, z0, clock, P, ACT, ytmp, ztmp)
     return _guard_at(method, theta, t, h, y0, y1, K, mode, P, ACT, ytmp, dytmp, auxtmp)
 
 
-@kernel
+@inline_kernel
 def _hermite_minimum(g0, d0, g1, d1):
     """Interior minimum (θ, value) of the cubic with p(0)=g0, p'(0)=d0, p(1)=g1, p'(1)=d1."""
     c1 = d0
@@ -176,8 +195,8 @@ def _hermite_minimum(g0, d0, g1, d1):
 
 
 @kernel
-def _locate(split, method, t, h, y0, y1, K, tau, hs, z0, Ko, mode, P, ACT, lo, hi, glo, ghi,
-            tol_theta, ytmp, dytmp, auxtmp, ztmp):
+def _locate(split, exact, method, t, h, y0, y1, K, tau, hs, z0, clock, mode, P, ACT, lo, hi, glo,
+            ghi, tol_theta, ytmp, dytmp, auxtmp, ztmp):
     """Illinois' regula falsi on g(θ), g(lo) > 0 > g(hi); returns θ just past the root.
 
     θ runs over the step [t, t+h] (split = False) or over the output sub-step [tau, tau+hs].
@@ -192,8 +211,8 @@ def _locate(split, method, t, h, y0, y1, K, tau, hs, z0, Ko, mode, P, ACT, lo, h
             m = hi - ghi * (hi - lo) / (ghi - glo)
             if not (lo < m < hi):
                 m = 0.5 * (lo + hi)
-        gm = _guard_value(split, method, m, t, h, y0, y1, K, tau, hs, z0, Ko, mode, P, ACT,
-                          ytmp, dytmp, auxtmp, ztmp)
+        gm = _guard_value(split, exact, method, m, t, h, y0, y1, K, tau, hs, z0, clock, mode, P,
+                          ACT, ytmp, dytmp, auxtmp, ztmp)
         if gm > 0.0:
             lo = m
             glo = gm
@@ -226,14 +245,21 @@ def _emit(method, t0, h, y0, y1, K, mode, P, ACT, grid, out, counters, t_limit, 
     counters[C_NEXT_SAMPLE] = i
 
 
+@inline_kernel
+def _due(grid, counters, t_limit):
+    """Is a grid sample due in (…, t_limit]? (Checked before the call: most steps have none.)"""
+    i = counters[C_NEXT_SAMPLE]
+    return i < grid.shape[0] and grid[i] <= t_limit
+
+
 @kernel
-def _emit_split(t, h, y0, K, tau, hs, z0, Ko, mode, P, ACT, grid, out, counters, t_limit, ycomb,
-                ztmp, dytmp, auxtmp):
-    """Grid samples in (tau, t_limit] inside a split step (input and output dense outputs)."""
+def _emit_split(exact, t, h, y0, K, tau, hs, z0, clock, mode, P, ACT, grid, out, counters,
+                t_limit, ycomb, ztmp, dytmp, auxtmp):
+    """Grid samples in (tau, t_limit] inside a split step (input and output states combined)."""
     i = counters[C_NEXT_SAMPLE]
     while i < grid.shape[0] and grid[i] <= t_limit:
         sigma = (grid[i] - tau) / hs if hs > 0.0 else 1.0
-        _combine(sigma, t, h, y0, K, tau, hs, z0, Ko, ycomb, ztmp)
+        _combine(exact, sigma, t, h, y0, K, tau, hs, z0, clock, P, ycomb, ztmp, True)
         project(grid[i], ycomb, mode, P, ACT)
         rhs(grid[i], ycomb, mode, P, ACT, dytmp, auxtmp)
         write_sample(out[i], grid[i], ycomb, mode, auxtmp)
@@ -242,42 +268,69 @@ def _emit_split(t, h, y0, K, tau, hs, z0, Ko, mode, P, ACT, grid, out, counters,
 
 
 @kernel
-def _split_output(t, h, y, y_new, K, mode, P, ACT, rtol, atol, armed, g0, h_io, grid, out,
-                  counters, Ko, z, z_new, ztmp, ycomb, ytmp, dytmp, auxtmp):
-    """Integrate the disengaged output subsystem over the accepted input step [t, t+h] on its own
-    adaptive clock, watching the slip at every sub-step.
+def _split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, armed, g0, h_io,
+                  grid, out, counters, z, z_new, ztmp, ycomb, ytmp, dytmp, auxtmp):
+    """The disengaged output subsystem over the accepted input step [t, t+h], apart from it:
+    solved exactly (linear output, physics/output_exact.py) or integrated on its own adaptive
+    clock; the slip is watched on sub-intervals (sub-steps, or ≤ EXACT_PHASE_STEP rad of the
+    output's fastest mode), each checked for a crossing and, by the Hermite cubic, for a dip.
 
-    The output states of y_new are replaced by the sub-integration's. On a slip crossing (or a
-    slip found beyond the band, 'late'), the input step is re-taken exactly to that time and the
-    state there is left in y_new. Returns (t reached, fire, last slip, armed).
+    The output states of y_new are replaced. On a slip crossing (or a slip found beyond the band,
+    'late'), the input step is re-taken exactly to that time and the state there is left in
+    y_new. Returns (t reached, fire, last slip, armed).
     """
+    Ko, zs, LIN, W = clock
     for i in range(N_OUTPUT):
         z[i] = y[OUTPUT_STATES[i]]
-    output_rhs(z, P, Ko[0])
-    h_out = h_io[1]
-    if h_out <= 0.0:
-        h_out = initial_step(OUTPUT, t, z, mode, P, ACT, Ko[0], rtol, atol, ztmp, dytmp,
-                             ERR_OUTPUT)
-    tau = t
+        zs[i] = z[i]
     t1 = t + h
+    if exact:
+        modal_coordinates(z, P, LIN, W)
+        n_exact = max(1, int(math.ceil(P[P_OUTPUT_RATE] * h / EXACT_PHASE_STEP)))
+        h_out = h / n_exact
+        _, dw3_0, _, _, _ = disengaged_output_rates(z[Z_TWIST], z[Z_OMEGA3], z[Z_OMEGA4], P)
+    else:
+        n_exact = 0
+        output_rhs(z, P, Ko[0])
+        dw3_0 = Ko[0, Z_OMEGA3]
+        h_out = h_io[1]
+        if h_out <= 0.0:
+            h_out = initial_step(OUTPUT, t, z, mode, P, ACT, Ko[0], rtol, atol, ztmp, dytmp,
+                                 ERR_OUTPUT)
+    tau = t
+    j = 0
     fire = _NO_EVENT
     v0 = z[Z_OMEGA3] - g0  # rocker speed at t
     while tau < t1:
-        hs = min(h_out, t1 - tau)
-        last = tau + hs >= t1
-        err = dopri5_step(OUTPUT, tau, z, hs, mode, P, ACT, Ko, z_new, ztmp, auxtmp, rtol, atol,
-                          ERR_OUTPUT)
+        if exact:
+            hs = h_out
+            last = j == n_exact - 1
+            if last:
+                hs = t1 - tau
+            output_at(tau + hs - t, zs, P, LIN, W, z_new, False)
+            _, dw3_1, _, _, _ = disengaged_output_rates(z_new[Z_TWIST], z_new[Z_OMEGA3],
+                                                        z_new[Z_OMEGA4], P)
+            factor = 1.0
+        else:
+            hs = min(h_out, t1 - tau)
+            last = tau + hs >= t1
+            err = dopri5_step(OUTPUT, tau, z, hs, mode, P, ACT, Ko, z_new, ztmp, auxtmp, rtol,
+                              atol, ERR_OUTPUT)
+            if not (err <= 1.0):
+                h_out = hs * max(MIN_FACTOR, SAFETY * err ** DP_ERROR_EXPONENT) \
+                    if err < math.inf else hs * MIN_FACTOR
+                if h_out < 1e-14 * max(1.0, abs(tau)):
+                    counters[C_STATUS] = STATUS_STEP_TOO_SMALL
+                    return tau, fire, g0, armed
+                continue
+            factor = MAX_FACTOR if err == 0.0 else min(MAX_FACTOR,
+                                                       SAFETY * err ** DP_ERROR_EXPONENT)
+            dw3_1 = Ko[6, Z_OMEGA3]
         counters[C_SUBSTEPS] += 1
-        if not (err <= 1.0):
-            h_out = hs * max(MIN_FACTOR, SAFETY * err ** DP_ERROR_EXPONENT) if err < math.inf \
-                else hs * MIN_FACTOR
-            if h_out < 1e-14 * max(1.0, abs(tau)):
-                counters[C_STATUS] = STATUS_STEP_TOO_SMALL
-                return tau, fire, g0, armed
-            continue
-        factor = MAX_FACTOR if err == 0.0 else min(MAX_FACTOR, SAFETY * err ** DP_ERROR_EXPONENT)
-        g1 = _split_slip(1.0, t, h, y, K, tau, hs, z, Ko, P, ACT, ycomb, ztmp)
-        v1 = ycomb[OMEGA3] - g1
+        t_end_sub = tau + hs
+        dense_state(DOPRI5, (t_end_sub - t) / h, h, y, y, K, ycomb)
+        v1 = rocker_speed(t_end_sub, ycomb, P, ACT)
+        g1 = z_new[Z_OMEGA3] - v1
         gtol = SLIP_TOLERANCE * (1.0 + abs(v1) + abs(z_new[Z_OMEGA3]))
         sigma = 1.0
         hi = 1.0
@@ -286,57 +339,71 @@ def _split_output(t, h, y, y_new, K, mode, P, ACT, rtol, atol, armed, g0, h_io, 
             if g1 < 0.0:
                 fire = _CROSSING
             else:
-                # both ends positive: a dip inside the sub-step (grazing)? The rocker is slow
-                # on the sub-step's scale, so its mean acceleration stands in for v'.
+                # both ends positive: a dip inside the sub-interval (grazing)? The rocker is
+                # slow on this scale, so its mean acceleration stands in for v'.
                 dv = (v1 - v0) / hs
-                tm, pm = _hermite_minimum(g0, hs * (Ko[0, Z_OMEGA3] - dv), g1,
-                                          hs * (Ko[6, Z_OMEGA3] - dv))
+                tm, pm = _hermite_minimum(g0, hs * (dw3_0 - dv), g1, hs * (dw3_1 - dv))
                 if pm < 0.0:
-                    gm = _split_slip(tm, t, h, y, K, tau, hs, z, Ko, P, ACT, ycomb, ztmp)
+                    gm = _split_slip(exact, tm, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb,
+                                     ztmp)
                     if gm < 0.0:
                         fire = _CROSSING
                         hi = tm
                         ghi = gm
             if fire == _CROSSING:
-                sigma = _locate(True, DOPRI5, t, h, y, y_new, K, tau, hs, z, Ko, mode, P, ACT,
-                                0.0, hi, g0, ghi, max(1e-13, 8.0 * 2.2e-16 * abs(tau)) / hs,
-                                ycomb, dytmp, auxtmp, ztmp)
+                sigma = _locate(True, exact, DOPRI5, t, h, y, y_new, K, tau, hs, z, clock, mode,
+                                P, ACT, 0.0, hi, g0, ghi,
+                                max(1e-13, 8.0 * 2.2e-16 * abs(tau)) / hs, ycomb, dytmp, auxtmp,
+                                ztmp)
         if fire == _NO_EVENT and g1 < -gtol:
             fire = _LATE
         if fire != _NO_EVENT:
             t_ev = tau + sigma * hs
-            # true steps to the event: the output sub-step, then the input step from t
-            dopri5_step(OUTPUT, tau, z, t_ev - tau, mode, P, ACT, Ko, z_new, ztmp, auxtmp, rtol,
-                        atol, ERR_OUTPUT)
-            _emit_split(t, h, y, K, tau, t_ev - tau, z, Ko, mode, P, ACT, grid, out, counters,
-                        t_ev, ycomb, ztmp, dytmp, auxtmp)
+            # true states at the event: the output exactly or by a re-taken sub-step, the input
+            # by a re-taken step from t
+            if exact:
+                output_at(t_ev - t, zs, P, LIN, W, z_new, True)
+            else:
+                dopri5_step(OUTPUT, tau, z, t_ev - tau, mode, P, ACT, Ko, z_new, ztmp, auxtmp,
+                            rtol, atol, ERR_OUTPUT)
+            if _due(grid, counters, t_ev):
+                _emit_split(exact, t, h, y, K, tau, t_ev - tau, z, clock, mode, P, ACT, grid,
+                            out, counters, t_ev, ycomb, ztmp, dytmp, auxtmp)
             if t_ev < t1:
                 dopri5_step(INPUT, t, y, t_ev - t, mode, P, ACT, K, y_new, ytmp, auxtmp, rtol,
                             atol, ERR_INPUT)
             for i in range(N_OUTPUT):
                 y_new[OUTPUT_STATES[i]] = z_new[i]
-            h_io[1] = h_out
+            if not exact:
+                h_io[1] = h_out
             return t_ev, fire, g1, armed
-        _emit_split(t, h, y, K, tau, hs, z, Ko, mode, P, ACT, grid, out, counters,
-                    t1 if last else tau + hs, ycomb, ztmp, dytmp, auxtmp)
+        if _due(grid, counters, t1 if last else tau + hs):
+            _emit_split(exact, t, h, y, K, tau, hs, z, clock, mode, P, ACT, grid, out, counters,
+                        t1 if last else tau + hs, ycomb, ztmp, dytmp, auxtmp)
         tau = t1 if last else tau + hs
+        j += 1
         for i in range(N_OUTPUT):
             z[i] = z_new[i]
             Ko[0, i] = Ko[6, i]
         g0 = g1
         v0 = v1
+        dw3_0 = dw3_1
         if not armed and abs(g1) > gtol:
             armed = True
-        h_out = max(h_out, hs * factor) if last else hs * factor
+        if not exact:
+            h_out = max(h_out, hs * factor) if last else hs * factor
+    if exact:
+        output_at(h, zs, P, LIN, W, z, True)  # with the work terms
+    else:
+        h_io[1] = h_out
     for i in range(N_OUTPUT):
         y_new[OUTPUT_STATES[i]] = z[i]
-    h_io[1] = h_out
     return t1, fire, g0, armed
 
 
 @kernel
-def _single_rate(method, t, h, err, clipped, t_end, y, y_new, K, mode, P, ACT, armed, g0, gd0,
-                 aux1, rtol, atol, grid, out, counters, ytmp, dytmp, auxtmp):
+def _single_rate(method, t, h, err, clipped, t_end, y, y_new, K, mode, P, ACT, clock, armed, g0,
+                 gd0, aux1, rtol, atol, grid, out, counters, ytmp, dytmp, auxtmp):
     """Witness function over an accepted step of the whole system: crossing (located on the
     dense output, then a true step to it), a dip inside the step (grazing, by the Hermite cubic
     of g and g'), or a guard found beyond its band ('late'). Emits the samples up to the time
@@ -361,26 +428,29 @@ def _single_rate(method, t, h, err, clipped, t_end, y, y_new, K, mode, P, ACT, a
         fire = _LATE  # the guard left its band on the wrong side: switch now
     if fire == _CROSSING:
         tol_theta = max(1e-13, 8.0 * 2.2e-16 * abs(t)) / h
-        theta = _locate(False, method, t, h, y, y_new, K, 0.0, 1.0, y, K, mode, P, ACT, 0.0, hi,
-                        g0, ghi, tol_theta, ytmp, dytmp, auxtmp, ytmp)
+        theta = _locate(False, False, method, t, h, y, y_new, K, 0.0, 1.0, y, clock, mode, P,
+                        ACT, 0.0, hi, g0, ghi, tol_theta, ytmp, dytmp, auxtmp, ytmp)
         h_ev = theta * h
         # a true step to the event, not the interpolant: the state there is step-accurate
         _step(method, FULL, t, y, h_ev, mode, P, ACT, K, y_new, ytmp, aux1, rtol, atol, ERR_FULL)
-        _emit(method, t, h_ev, y, y_new, K, mode, P, ACT, grid, out, counters, t + h_ev, ytmp,
-              dytmp, auxtmp)
+        if _due(grid, counters, t + h_ev):
+            _emit(method, t, h_ev, y, y_new, K, mode, P, ACT, grid, out, counters, t + h_ev,
+                  ytmp, dytmp, auxtmp)
         g1, _ = clutch_guard(mode, y_new, K[6], aux1, P)
         return t + h_ev, fire, g1
     t_new = t_end if (clipped and t + h >= t_end) else t + h
-    _emit(method, t, h, y, y_new, K, mode, P, ACT, grid, out, counters, t_new, ytmp, dytmp,
-          auxtmp)
+    if _due(grid, counters, t_new):
+        _emit(method, t, h, y, y_new, K, mode, P, ACT, grid, out, counters, t_new, ytmp, dytmp,
+              auxtmp)
     return t_new, fire, g1
 
 
 @kernel
-def advance(t, t_end, y, ms, P, ACT, S, h_io, grid, out, events, counters, ledger):
+def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, ledger):
     """Integrate the hybrid system from t to t_end [s]; returns the time reached.
 
-    y: state (in/out); ms: int64[2] (clutch mode, guard armed); S: settings (S_*);
+    y: state (in/out); ms: int64[2] (clutch mode, guard armed); LIN: modal form of the linear
+    output subsystem (physics/output_exact.py); S: settings (S_*);
     h_io: float[2] step-size proposals (main, output sub-steps) carried between calls (≤ 0:
     choose); grid/out: sample times and rows (counters[C_NEXT_SAMPLE] is the next one to fill);
     events: rows (t, new mode, kind, value); ledger: float[1] kinetic energy lost in late
@@ -403,8 +473,11 @@ def advance(t, t_end, y, ms, P, ACT, S, h_io, grid, out, events, counters, ledge
     z_new = np.empty(N_OUTPUT)
     ztmp = np.empty(N_OUTPUT)
     ycomb = np.empty(n)
-    # a disengaged elastic output with J3 > 0 runs on its own clock (multirate, see _split_output)
+    # a disengaged elastic output with J3 > 0 runs apart from the input (see _split_output):
+    # exactly when it is linear, else on its own clock
     can_split = method == DOPRI5 and P[P_RIGID] == 0.0 and P[P_J3] > 0.0
+    exact = P[P_LINEAR_OUTPUT] > 0.0
+    clock = (Ko, np.empty(N_OUTPUT), LIN, np.empty((2, 3), dtype=np.complex128))
     mode = ms[0]
     armed = ms[1] == 1
     counters[C_STATUS] = STATUS_OK
@@ -445,6 +518,7 @@ def advance(t, t_end, y, ms, P, ACT, S, h_io, grid, out, events, counters, ledge
         err = _step(method, INPUT if split else FULL, t, y, h, mode, P, ACT, K, y_new, ytmp, aux1,
                     rtol, atol, ERR_INPUT if split else ERR_FULL)
         counters[C_STEPS] += 1
+        counters[C_ENGAGED_STEPS] += mode
         if method == DOPRI5:
             if not (err <= 1.0) or not finite_state(y_new):
                 counters[C_REJECTED] += 1
@@ -461,8 +535,8 @@ def advance(t, t_end, y, ms, P, ACT, S, h_io, grid, out, events, counters, ledge
 
         if split:
             t_new, fire, g1, armed = _split_output(
-                t, h, y, y_new, K, mode, P, ACT, rtol, atol, armed, g0, h_io, grid, out,
-                counters, Ko, z, z_new, ztmp, ycomb, ytmp, dytmp, auxtmp)
+                exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, armed, g0, h_io, grid,
+                out, counters, z, z_new, ztmp, ycomb, ytmp, dytmp, auxtmp)
             if counters[C_STATUS] != STATUS_OK:
                 break
             if fire == _NO_EVENT:
@@ -484,8 +558,8 @@ def advance(t, t_end, y, ms, P, ACT, S, h_io, grid, out, events, counters, ledge
             g1 = aux1[AUX_SLIP]
         else:
             t_new, fire, g1 = _single_rate(
-                method, t, h, err, clipped, t_end, y, y_new, K, mode, P, ACT, armed, g0, gd0,
-                aux1, rtol, atol, grid, out, counters, ytmp, dytmp, auxtmp)
+                method, t, h, err, clipped, t_end, y, y_new, K, mode, P, ACT, clock, armed, g0,
+                gd0, aux1, rtol, atol, grid, out, counters, ytmp, dytmp, auxtmp)
             if method == DOPRI5 and fire != _CROSSING:
                 factor = MAX_FACTOR if err == 0.0 else min(MAX_FACTOR,
                                                            SAFETY * err ** DP_ERROR_EXPONENT)
@@ -507,7 +581,7 @@ def advance(t, t_end, y, ms, P, ACT, S, h_io, grid, out, events, counters, ledge
         kind = KIND_GRAZE
         value = aux1[AUX_SLIP]
         if mode == ENGAGED:
-            value = g1 if fire == _LATE else 0.0
+            value = g1  # the release guard where the switch was placed (≈ 0 unless late)
             if uses_twist_release(P) and free_slip_rate(t, y, P, ACT, dytmp, auxtmp) < 0.0:
                 kind = KIND_GRAZE  # paper rule: twist is zero but the clutch cannot separate
             else:

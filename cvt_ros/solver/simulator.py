@@ -15,6 +15,7 @@ from ..physics.clutch import KIND_ENGAGE_IMPACT, KIND_GRAZE, clutch_engages
 from ..physics.drives import crank_actuator, hold_profile, plan_profile
 from ..physics.dynamics import energy_residual, engage_with_impact, project, rhs
 from ..physics.linkage import check_crank_length, kinematics, rocker_angle
+from ..physics.output_exact import modal_form
 from . import hybrid as H
 from .output import COL, N_COLUMNS, write_sample
 from .steppers import DOPRI5, RK4
@@ -129,6 +130,10 @@ class Simulator:
         self._call(self.t, self._empty_grid, self._empty_out)
 
     def _configure_steps(self):
+        usable, self.LIN, rate = modal_form(self.P)
+        usable = usable and self.values['solver.output_subsystem'] == 'exact'
+        self.P[L.P_LINEAR_OUTPUT] = 1.0 if usable else 0.0
+        self.P[L.P_OUTPUT_RATE] = rate
         self.h_stable = RK4_STEP_BY_MODE / fastest_rate(self.values)
         self.h_fixed = min(self.values['solver.fixed_step'], self.h_stable)
         self.S = settings_vector(self.values, self.h_fixed)
@@ -223,8 +228,8 @@ class Simulator:
 
     # ------------------------------------------------------------------ integration
     def _call(self, t_end, grid, out):
-        t = H.advance(self.t, t_end, self.y, self.ms, self.P, self.ACT, self.S, self.h_io, grid,
-                      out, self._events_buf, self.counters, self.ledger)
+        t = H.advance(self.t, t_end, self.y, self.ms, self.P, self.ACT, self.LIN, self.S,
+                      self.h_io, grid, out, self._events_buf, self.counters, self.ledger)
         self.t = t
         n_ev = int(self.counters[H.C_EVENTS])
         switches = []
