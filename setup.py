@@ -15,7 +15,6 @@ setup(
         ('share/' + package_name + '/config/scenes', glob('config/scenes/*.yaml')),
         ('share/' + package_name + '/launch', glob('launch/*.py')),
     ],
-    package_data={package_name: ['scenes/*.yaml']},
     install_requires=['setuptools', 'numpy', 'scipy', 'PyYAML'],
     zip_safe=True,
     maintainer='cvt_ros developers',
@@ -26,6 +25,7 @@ setup(
     entry_points={
         'console_scripts': [
             'cvt-sim = cvt_ros.tools.cli:main',
+            'cvt_node = cvt_ros.node:main',
         ],
     },
 )

@@ -57,6 +57,13 @@ class ParameterSpec:
             return value
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ParameterError(self.name, f"expected a number [{self.unit}], got {value!r}")
+        if isinstance(self.default, int):
+            if not float(value).is_integer():
+                raise ParameterError(self.name, f"expected a whole number, got {value!r}")
+            value = int(value)
+            if value < self.low or value > self.high:
+                raise ParameterError(self.name, f"{value} is outside {self.range_text()}")
+            return value
         value = float(value)
         if math.isnan(value) or (math.isinf(value) and not (self.allow_inf and value > 0)):
             raise ParameterError(self.name, f"{value!r} is not a finite number [{self.unit}]")
@@ -133,7 +140,42 @@ PHYSICS_PARAMETERS = (
           low=0.0, low_open=True),
 )
 
-SPECS = {s.name: s for s in PHYSICS_PARAMETERS}
+# The node's own parameters (cvt_ros/node.py). They live here, free of rclpy, so that one scene
+# file can carry them and still configure the offline CLI, which ignores them.
+TIME_MODES = ('realtime', 'fast', 'lockstep')
+NODE_PARAMETERS = (
+    _spec('time_mode', 'realtime', '-',
+                  'realtime (wall clock x real_time_factor) | fast (as fast as possible, '
+                  'publishing /clock) | lockstep (advances only on ~/step or steps_per_command)',
+                  choices=TIME_MODES),
+    _spec('real_time_factor', 1.0, '-',
+                  'realtime mode: simulated seconds per wall-clock second',
+                  low=0.0, high=1000.0, low_open=True),
+    _spec('publish_rate', 1000.0, 'Hz',
+                  'samples per simulated second; the control period (one physics step, one '
+                  'joint_states sample) is 1/publish_rate of simulation time',
+                  low=0.0, high=100000.0, low_open=True),
+    _spec('realtime_priority', 50, '-',
+                  'realtime mode: SCHED_FIFO priority of the simulation loop thread (Linux; '
+                  '0 = normal scheduling); without the permission it runs normally, with a '
+                  'warning', low=0.0, high=99.0),
+    _spec('steps_per_command', 0, '-',
+                  'lockstep mode: control periods each command message advances (0 = only ~/step)',
+                  low=0.0, high=1e9),
+    _spec('publish_clock', True, '-',
+                  'publish /clock (the node is the time source); turn off for all but one '
+                  'transmission when several share a ROS graph',
+                  choices=(True, False)),
+    _spec('limits.load_torque', 1000.0, 'N*m',
+                  'largest |load_torque_cmd| accepted; larger commands are refused',
+                  low=0.0, low_open=True),
+    _spec('joint_prefix', '', '-',
+                  'prefix of the joint names in joint_states (e.g. line1_)'),
+    _spec('record.path', '', '-',
+                  'MCAP file to record published and received messages to (empty = off)'),
+)
+
+SPECS = {s.name: s for s in PHYSICS_PARAMETERS + NODE_PARAMETERS}
 
 
 def register(*specs):

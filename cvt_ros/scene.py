@@ -6,6 +6,7 @@ the ROS 2 parameter-file parser does.
 """
 import math
 import os
+import sys
 from pathlib import Path
 
 import yaml
@@ -24,7 +25,8 @@ class SceneError(ValueError):
 def scene_dirs():
     """Where scene names are looked up: the source tree, then the installed share folder."""
     dirs = [SCENES_DIR]
-    for prefix in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep):
+    # a ROS workspace (AMENT_PREFIX_PATH) or a plain pip install (data_files under sys.prefix)
+    for prefix in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep) + [sys.prefix]:
         if prefix:
             dirs.append(Path(prefix) / 'share' / 'cvt_ros' / 'config' / 'scenes')
     return [d for d in dirs if d.is_dir()]

@@ -14,7 +14,7 @@ from ..physics import layout as L
 from ..physics.clutch import KIND_ENGAGE_IMPACT, KIND_GRAZE, clutch_engages
 from ..physics.drives import crank_actuator, hold_profile, plan_profile
 from ..physics.dynamics import energy_residual, engage_with_impact, project, rhs
-from ..physics.linkage import check_crank_length, kinematics, rocker_angle
+from ..physics.linkage import GrashofError, check_crank_length, kinematics, rocker_angle
 from ..physics.output_exact import modal_form
 from . import hybrid as H
 from .output import COL, N_COLUMNS, write_sample
@@ -111,6 +111,7 @@ class Simulator:
         self.t = 0.0
         self.ACT = hold_profile(0.0, v['linkage.crank_length'])
         self.crank_length_target = v['linkage.crank_length']
+        self.load_torque_cmd = None  # run-time load command overriding load.torque, if any
         self.y = np.zeros(L.N_STATE)
         w1 = v['motor.speed'] if v['motor.model'] == 'constant_speed' else v['initial.crank_speed']
         self.y[L.OMEGA1] = w1
@@ -172,6 +173,11 @@ class Simulator:
         return self.ms[0] == L.ENGAGED
 
     @property
+    def load_torque(self):
+        """The constant part of the load torque now in force [N·m] (command or scene)."""
+        return float(self.P[L.P_LOAD_TORQUE])
+
+    @property
     def crank_length(self):
         return crank_actuator(self.t, self.ACT)[0]
 
@@ -196,9 +202,13 @@ class Simulator:
         self.crank_length_target = float(target)
 
     def set_load_torque(self, torque):
-        """Set the constant part of the load torque [N·m] (takes effect at the next step)."""
+        """Command the constant part of the load torque [N·m] (acts at the next step).
+
+        A run-time input, like the crank-length command: it overrides the scene's
+        ``load.torque`` until reset() or a live change of that parameter.
+        """
         torque = params_mod.SPECS['load.torque'].check(torque)
-        self.values = dict(self.values, **{'load.torque': torque})
+        self.load_torque_cmd = torque
         self.P[L.P_LOAD_TORQUE] = torque
 
     def update_parameters(self, changes):
@@ -207,12 +217,28 @@ class Simulator:
         at once, the clutch mode is re-decided, and the stored energy's jump is booked."""
         new = params_mod.validate(dict(self.values, **changes))
         changes = {k: new[k] for k in changes}
-        e_before = self._energy()
         target = changes.pop('linkage.crank_length', None)
-        self.values = new
         a_now = crank_actuator(self.t, self.ACT)[0]
+        geometry = (new['linkage.rocker_length'], new['linkage.coupler_length'],
+                    new['linkage.pivot_distance'])
+        # the crank as it is now, and where it is heading, must fit the new geometry too
+        checks = [(a_now, 'present')]
+        if target is None:  # (a new target was checked by validate())
+            checks.append((self.crank_length_target, 'commanded'))
+        for a, what in checks:
+            try:
+                check_crank_length(a, *geometry)
+            except GrashofError as exc:
+                raise GrashofError(f"the {what} crank length does not fit the new geometry: "
+                                   f"{exc}", exc.value, exc.limit) from None
+        e_before = self._energy()
+        self.values = new
         self.P = params_mod.parameter_vector(new)
         self.P[L.P_A] = a_now
+        if 'load.torque' in changes:
+            self.load_torque_cmd = None
+        elif self.load_torque_cmd is not None:
+            self.P[L.P_LOAD_TORQUE] = self.load_torque_cmd
         if 'motor.model' in changes or 'motor.speed' in changes:
             if new['motor.model'] == 'constant_speed':
                 self.y[L.OMEGA1] = new['motor.speed']

@@ -1,0 +1,272 @@
+"""Helpers for the node tests: the node in a subprocess, a probe node in the test process.
+
+Every test module gets its own ROS domain (``domain_id``), discovery is limited to this machine,
+and nothing waits by sleeping: ``wait_for`` polls a condition until a timeout.
+
+Run as a script, ``python test/node_harness.py flood TOPIC RATE SECONDS VALUE...`` publishes
+std_msgs/Float64 commands at RATE per second from its own process (a flood must not share the
+probe's interpreter lock).
+"""
+import itertools
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+
+import rclpy
+from rcl_interfaces.msg import Parameter as ParameterMsg
+from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters, SetParameters
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+REPO = os.path.dirname(HERE)
+SCENES = os.path.join(REPO, 'config', 'scenes')
+_counter = itertools.count()
+
+RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                      reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
+LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
+                     reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+BEST_EFFORT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
+                         reliability=ReliabilityPolicy.BEST_EFFORT,
+                         durability=DurabilityPolicy.VOLATILE)
+
+
+def domain_id():
+    """A ROS domain for one test module: distinct within this process, spread by pid (1..100)."""
+    return 1 + (os.getpid() * 13 + next(_counter) * 37) % 100
+
+
+def ros_env(domain):
+    env = dict(os.environ)
+    env.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+               PYTHONUNBUFFERED='1')
+    env.setdefault('AMENT_PREFIX_PATH', sys.prefix)
+    env.pop('ROS_STATIC_PEERS', None)
+    return env
+
+
+def wait_for(predicate, timeout, interval=0.005):
+    """Poll ``predicate`` until it is truthy (returns its value) or ``timeout`` [s] passes."""
+    end = time.monotonic() + timeout
+    while True:
+        value = predicate()
+        if value or time.monotonic() > end:
+            return value
+        time.sleep(interval)
+
+
+def stamp_s(msg):
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+
+def stamp_ns(msg):
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+class NodeProcess:
+    """``python -m cvt_ros.node ARGS --ros-args ROS_ARGS`` in its own process and domain."""
+
+    def __init__(self, domain, ros_args=(), args=(), command=None):
+        self.log = tempfile.TemporaryFile(mode='w+')
+        cmd = list(command or [sys.executable, '-m', 'cvt_ros.node'])
+        cmd += list(args) + ['--ros-args'] + list(ros_args)
+        self.proc = subprocess.Popen(cmd, env=ros_env(domain), stdout=self.log,
+                                     stderr=subprocess.STDOUT, cwd=REPO)
+
+    def output(self):
+        self.log.flush()
+        self.log.seek(0)
+        return self.log.read()
+
+    def alive(self):
+        return self.proc.poll() is None
+
+    def stop(self, sig=signal.SIGINT, timeout=10.0):
+        """Send ``sig``; returns (exit code, seconds until the process ended)."""
+        if not self.alive():
+            return self.proc.returncode, 0.0
+        t0 = time.monotonic()
+        self.proc.send_signal(sig)
+        try:
+            code = self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            code = self.proc.wait()
+        return code, time.monotonic() - t0
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        if self.alive():
+            self.stop(signal.SIGINT, 5.0)
+        self.log.close()
+
+
+class Collector:
+    """Messages of one subscription as (monotonic receive time, message)."""
+
+    def __init__(self):
+        self.items = []
+        self.lock = threading.Lock()
+
+    def __call__(self, msg):
+        with self.lock:
+            self.items.append((time.monotonic(), msg))
+
+    def __len__(self):
+        return len(self.items)
+
+    def messages(self, since=0):
+        with self.lock:
+            return [m for _, m in self.items[since:]]
+
+    def timed(self, since=0):
+        with self.lock:
+            return list(self.items[since:])
+
+    def last(self):
+        with self.lock:
+            return self.items[-1][1] if self.items else None
+
+
+class Probe:
+    """A test node in its own rclpy context (domain), spun by a background thread."""
+
+    def __init__(self, domain, name='cvt_test_probe', parameter_overrides=None):
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=domain)
+        self.node = Node(name, context=self.context, parameter_overrides=parameter_overrides)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _spin(self):
+        while self.context.ok():
+            try:
+                self.executor.spin_once(timeout_sec=0.05)
+            except Exception:   # noqa: BLE001 — shutting down
+                if not self.context.ok():
+                    return
+                raise
+
+    def close(self):
+        self.executor.shutdown(timeout_sec=1.0)
+        self.node.destroy_node()
+        rclpy.try_shutdown(context=self.context)
+        self._thread.join(2.0)
+
+    def subscribe(self, msg_type, topic, qos=RELIABLE):
+        collector = Collector()
+        collector.subscription = self.node.create_subscription(msg_type, topic, collector, qos)
+        return collector
+
+    def unsubscribe(self, collector):
+        self.node.destroy_subscription(collector.subscription)
+
+    def publisher(self, msg_type, topic, qos=RELIABLE):
+        return self.node.create_publisher(msg_type, topic, qos)
+
+    def call(self, srv_type, name, request=None, timeout=10.0):
+        """Call a service; returns the response (raises TimeoutError)."""
+        client = self.node.create_client(srv_type, name)
+        try:
+            if not client.wait_for_service(timeout_sec=timeout):
+                raise TimeoutError(f"service {name} not available")
+            done = threading.Event()
+            future = client.call_async(request if request is not None else srv_type.Request())
+            future.add_done_callback(lambda _: done.set())
+            if not done.wait(timeout):
+                raise TimeoutError(f"service {name} did not answer")
+            return future.result()
+        finally:
+            self.node.destroy_client(client)
+
+    # parameters of another node, through its parameter services
+    def set_parameters(self, node, **values):
+        """``set_parameters('/ns/cvt_sim', name=value)`` (dotted names: pass a dict with **)."""
+        request = SetParameters.Request(
+            parameters=[Parameter(k, value=v).to_parameter_msg() for k, v in values.items()])
+        return self.call(SetParameters, f"{node}/set_parameters", request).results
+
+    def set_raw_parameter(self, node, msg):
+        """Set one rcl_interfaces/Parameter message as is (to send a wrong type)."""
+        request = SetParameters.Request(parameters=[msg])
+        return self.call(SetParameters, f"{node}/set_parameters", request).results[0]
+
+    def get_parameters(self, node, names):
+        request = GetParameters.Request(names=list(names))
+        values = self.call(GetParameters, f"{node}/get_parameters", request).values
+        return {n: Parameter.from_parameter_msg(ParameterMsg(name=n, value=v)).value
+                for n, v in zip(names, values, strict=True)}
+
+    def describe_parameters(self, node, names):
+        request = DescribeParameters.Request(names=list(names))
+        return self.call(DescribeParameters, f"{node}/describe_parameters", request).descriptors
+
+    def list_parameters(self, node):
+        return self.call(ListParameters, f"{node}/list_parameters",
+                         ListParameters.Request()).result.names
+
+    def publishers(self, topic):
+        return self.node.get_publishers_info_by_topic(topic)
+
+    def subscriptions(self, topic):
+        return self.node.get_subscriptions_info_by_topic(topic)
+
+
+def diagnostics_values(msg):
+    """The key/value pairs of the first status of a DiagnosticArray."""
+    return {kv.key: kv.value for kv in msg.status[0].values}
+
+
+def flood(domain, topic, rate, seconds, values):
+    """Run the flooder in its own process: ``rate`` Float64 messages per second."""
+    cmd = [sys.executable, os.path.abspath(__file__), 'flood', topic, str(rate), str(seconds)]
+    cmd += [repr(float(v)) for v in values]
+    return subprocess.Popen(cmd, env=ros_env(domain), stdout=subprocess.PIPE, text=True)
+
+
+def _flood_main(topic, rate, seconds, *values):
+    from std_msgs.msg import Float64
+    rclpy.init()
+    node = Node('cvt_test_flood')
+    pub = node.create_publisher(Float64, topic, RELIABLE)
+    wait_for(lambda: pub.get_subscription_count() > 0, 10.0)
+    rate, seconds = float(rate), float(seconds)
+    cycle = [Float64(data=float(v)) for v in values]
+    period = int(1e9 / rate)
+    n = int(rate * seconds)
+    t0 = time.monotonic_ns()
+    for i in range(n):   # a monotonic schedule; sleeps in ~1 ms slices, then a burst
+        ahead = t0 + i * period - time.monotonic_ns()
+        if ahead > 500_000:
+            time.sleep(ahead * 1e-9)
+        pub.publish(cycle[i % len(cycle)])
+    elapsed = (time.monotonic_ns() - t0) * 1e-9
+    print(f"{n} {elapsed:.3f}", flush=True)
+    node.destroy_node()
+    rclpy.try_shutdown()
+
+
+if __name__ == '__main__':
+    if len(sys.argv) > 1 and sys.argv[1] == 'flood':
+        _flood_main(*sys.argv[2:])
+    else:
+        sys.exit(f"usage: {sys.argv[0]} flood TOPIC RATE SECONDS VALUE...")
+
+
+__all__ = ['NodeProcess', 'Probe', 'Collector', 'domain_id', 'wait_for', 'flood', 'stamp_s',
+           'stamp_ns', 'diagnostics_values', 'RELIABLE', 'LATCHED', 'BEST_EFFORT', 'SCENES',
+           'signal']
