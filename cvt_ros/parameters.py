@@ -135,6 +135,10 @@ PHYSICS_PARAMETERS = (
           'exact: the open clutch\'s linear output (J3, shaft, J4) is solved in closed form; '
           'integrate: on its own adaptive clock (always so for a quadratic load)',
           choices=('exact', 'integrate')),
+    _spec('solver.refine_step', 'auto', '-',
+          'auto: rk4 sub-steps below its stability limit for the stiffest mode (h·λmax ≤ 0.5); '
+          'off: exactly solver.fixed_step (for stability experiments: may blow up)',
+          choices=('auto', 'off')),
     _spec('solver.fixed_step', 2e-4, 's',
           'largest sub-step of rk4 (the step is refined further if the shaft mode needs it)',
           low=0.0, low_open=True),

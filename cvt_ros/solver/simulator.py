@@ -136,7 +136,9 @@ class Simulator:
         self.P[L.P_LINEAR_OUTPUT] = 1.0 if usable else 0.0
         self.P[L.P_OUTPUT_RATE] = rate
         self.h_stable = RK4_STEP_BY_MODE / fastest_rate(self.values)
-        self.h_fixed = min(self.values['solver.fixed_step'], self.h_stable)
+        self.h_fixed = self.values['solver.fixed_step']
+        if self.values['solver.refine_step'] == 'auto':
+            self.h_fixed = min(self.h_fixed, self.h_stable)
         self.S = settings_vector(self.values, self.h_fixed)
 
     def _set_rocker_from_linkage(self):
@@ -287,8 +289,7 @@ class Simulator:
         if not (dt > 0.0 and math.isfinite(dt)):
             raise ValueError(f"dt must be a positive finite time, got {dt!r}")
         if self.S[H.S_METHOD] == RK4:
-            n = max(1, math.ceil(dt / min(self.values['solver.fixed_step'], self.h_stable)
-                                 - 1e-9))
+            n = max(1, math.ceil(dt / self.h_fixed - 1e-9))
             self.S[H.S_H_FIXED] = dt / n
         switches = self._advance_to(self.t + dt, self._empty_grid, self._empty_out)
         self._rebase_angles()
