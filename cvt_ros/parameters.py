@@ -120,6 +120,10 @@ PHYSICS_PARAMETERS = (
     _spec('model.formulation', 'reduced', '-',
           'reduced (closed-form linkage) | paper (index-reduced DAE, eqs. 9, 11, 12)',
           choices=('reduced', 'paper')),
+    _spec('model.fidelity', 'full', '-',
+          'full (4-inertia hybrid) | rigid_shaft (J3 and J4 lumped) | averaged (mean motion '
+          'through a calibrated ratio map, for long runs)',
+          choices=('full', 'rigid_shaft', 'averaged')),
     _spec('model.baumgarte', 200.0, '1/s', 'constraint stabilization rate of the paper formulation',
           low=0.0),
     _spec('initial.crank_speed', 150.0, 'rad/s', 'crank speed ω1 at t = 0'),
@@ -230,7 +234,7 @@ def parameter_vector(values):
     P[L.P_J2] = v['inertia.rocker']
     P[L.P_J3] = v['inertia.clutch_driven']
     P[L.P_J4] = v['inertia.output']
-    rigid = math.isinf(v['shaft.stiffness'])
+    rigid = math.isinf(v['shaft.stiffness']) or v['model.fidelity'] == 'rigid_shaft'
     P[L.P_C] = 0.0 if rigid else v['shaft.stiffness']
     P[L.P_RIGID] = 1.0 if rigid else 0.0
     P[L.P_KD] = v['shaft.damping']

@@ -73,7 +73,7 @@ def settings_vector(values, h_fixed):
 
 def fastest_rate(values):
     """Largest eigenvalue magnitude λ_max [1/s] an explicit step has to resolve (bound)."""
-    c = values['shaft.stiffness']
+    c = math.inf if values['model.fidelity'] == 'rigid_shaft' else values['shaft.stiffness']
     kd = values['shaft.damping']
     J2, J3, J4 = values['inertia.rocker'], values['inertia.clutch_driven'], values['inertia.output']
     rates = [abs(values['initial.crank_speed']), values['motor.synchronous_speed']]
