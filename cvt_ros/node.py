@@ -55,8 +55,9 @@ from . import parameters as params_mod
 from .parameters import NODE_PARAMETERS, PHYSICS_PARAMETERS, ParameterError
 from .physics.linkage import GrashofError, grashof_bound
 from .scene import NODE_NAME, SceneError, read_scene
+from .solver.fidelity import make_simulator
 from .solver.output import COL
-from .solver.simulator import SimulationError, Simulator
+from .solver.simulator import SimulationError
 
 # ---------------------------------------------------------------------------------- constants
 DEFAULT_SCENE = 'conveyor'
@@ -325,7 +326,7 @@ class CvtSimNode(Node):
 
         # loop-thread state (the Simulator is touched by the loop thread only)
         self._warm_up()
-        self._sim = Simulator(self._physics_values())
+        self._sim = make_simulator(self._physics_values())
         self._ahead = None          # realtime: the next step, computed but not yet published
         self._resync = True         # realtime: re-anchor the wall-clock schedule
         self._anchor_wall_ns = 0
@@ -449,7 +450,7 @@ class CvtSimNode(Node):
 
     def _warm_up(self):
         """Load (or compile) the numba kernels before the loop's timing starts."""
-        sim = Simulator(self._physics_values())
+        sim = make_simulator(self._physics_values())
         sim.advance(self._dt)
         sim.sample()
         sim.energy_balance()
@@ -894,7 +895,7 @@ class CvtSimNode(Node):
     def _do_reset(self):
         self._ahead = None
         try:
-            self._sim = Simulator(self._physics_values())
+            self._sim = make_simulator(self._physics_values())
             self._fault = None
         except (ParameterError, GrashofError, SimulationError) as exc:
             self._fault = f"reset failed: {exc}"
