@@ -894,6 +894,8 @@ class CvtSimNode(Node):
 
     def _do_reset(self):
         self._ahead = None
+        if self._recorder is not None:
+            self._recorder.mark_reset()  # simulation time restarts at 0; log times go on
         try:
             self._sim = make_simulator(self._physics_values())
             self._fault = None
@@ -990,23 +992,30 @@ class CvtSimNode(Node):
         ]
 
     def _open_recorder(self, path):
-        """Hook for the MCAP recorder (parameter record.path), not wired in yet. To wire it:
-        create the writer for ``path``, register ``recorded_topics()`` on it, keep it in
-        ``self._recorder``; ``_hand_to_recorder`` then feeds it (``write(topic, msg, t_ns)``)
-        and ``_close_recorder`` finishes it. Log times are simulation time: they go back to 0
-        on ~/reset, and a command (stamped with the last published sample when it arrives, on
-        the executor thread) may trail a switch already written by the loop thread by < 1
-        control period, so the writer must clamp log times (or start a new file on reset)."""
-        self.get_logger().warning(
-            f"record.path = {path!r}: recording is not available in this build yet; "
-            f"nothing is written")
-        self._recorder = None
+        """Record everything published and received to ``path`` (parameter record.path) at
+        simulation time, through cvt_ros.tools.record.SimulationRecorder. A path that cannot be
+        written is logged and the node runs on without recording; a later I/O error (disk full)
+        is logged once and recording stops, the simulation does not."""
+        from .recording import RecordingError
+        from .tools.record import SimulationRecorder
+        logger = self.get_logger()
+        try:
+            self._recorder = SimulationRecorder(
+                path, topic_names=dict(self._topic), joint_names=self._joint_names,
+                parameters=self._physics_values(), source='cvt_node',
+                on_error=lambda exc: logger.error(f"recording to {path} stopped: {exc}; "
+                                                  f"the simulation goes on"))
+            logger.info(f"recording to {path}")
+        except (RecordingError, OSError, ValueError) as exc:
+            logger.error(f"record.path = {path!r}: cannot record ({exc}); the simulation "
+                         f"goes on without recording")
+            self._recorder = None
 
     def _close_recorder(self):
         recorder, self._recorder = self._recorder, None
         if recorder is not None:
             with self._record_lock:
-                recorder.finish()
+                recorder.close()
 
     def _hand_to_recorder(self, topic, msg, t_ns):
         """Every published and received message passes here with its resolved topic name and
