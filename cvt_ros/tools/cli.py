@@ -8,6 +8,7 @@ import sys
 
 from ..parameters import ParameterError
 from ..physics.linkage import GrashofError
+from ..recording.errors import RecordingError
 from ..scene import SceneError, available_scenes
 from ..solver.simulator import SimulationError
 
@@ -23,8 +24,14 @@ examples:
   cvt-sim run conveyor --duration 60 --set load.torque=12 --csv conveyor.csv
   cvt-sim run config/scenes/mixer.yaml --duration 5 --set solver.rtol=1e-10
   cvt-sim params                      # every scene parameter with unit, default and range
+  cvt-sim run paper --duration 5 --mcap paper.mcap   # record (rosbag2 MCAP)
+  cvt-sim analyze paper.mcap --plots plots/          # cycle metrics and figures
+  cvt-sim replay paper.mcap --rate 0.5               # back onto ROS topics, with /clock
 scenes: {scenes}
 """
+
+
+PASS_THROUGH = ('node', 'bench')
 
 
 def _positive_float(text):
@@ -60,7 +67,19 @@ def build_parser():
                      help='sample interval of the output [s] (default 0.001)')
     run.add_argument('--csv', metavar='FILE', help='write the samples to this CSV file')
     run.add_argument('--quiet', action='store_true', help='no progress bar')
+    run.add_argument('--mcap', metavar='FILE',
+                     help='record the run to this MCAP file (rosbag2 format: joint_states, '
+                          'clutch_engaged at each switch, /clock; see docs/recording.md)')
+    run.add_argument('--overwrite', action='store_true', help='replace an existing --mcap file')
+    run.add_argument('--fidelity', choices=('full', 'rigid_shaft', 'averaged', 'auto'),
+                     help='model fidelity (default: the scene\'s model.fidelity); auto: the '
+                          'cheapest whose mean output speed is within --tolerance of full')
+    run.add_argument('--tolerance', type=_positive_float, default=0.01, metavar='X',
+                     help='relative error budget for --fidelity auto (default 0.01)')
     run.set_defaults(func=_run)
+
+    from .cli_recording import add_parsers
+    add_parsers(sub)
 
     scenes = sub.add_parser('scenes', help='list the scenes that ship with the package')
     scenes.set_defaults(func=_scenes)
@@ -69,11 +88,20 @@ def build_parser():
                                            'range, meaning)')
     params.set_defaults(func=_params)
 
-    demo = sub.add_parser('demo', help='the demo: the paper scene end to end, with its summary')
+    demo = sub.add_parser('demo', help='the demo: the paper scene offline, then the node '
+                                       'driven by a scripted controller')
     demo.set_defaults(func=_demo)
 
     warm = sub.add_parser('warmup', help='compile the numba kernels into the on-disk cache')
     warm.set_defaults(func=_warmup)
+
+    node = sub.add_parser('node', add_help=False,
+                          help='the ROS 2 node (same as cvt_node; --help for its options)')
+    node.set_defaults(func=_node)
+
+    bench = sub.add_parser('bench', add_help=False,
+                           help='work-precision benchmark → BENCHMARKS.md (--quick for CI size)')
+    bench.set_defaults(func=_bench)
     return parser
 
 
@@ -99,11 +127,25 @@ def _params(args):
 
 
 def _demo(args):
+    from .demo_node import run_demo
     from .run import format_summary, run_scene, summarize
-    print("cvt-sim demo: the paper's Fig. 2/3 scene (i ≈ 0.25), 10 s from start-up\n")
+    print("cvt-sim demo 1/2: the paper's Fig. 2/3 scene offline (i ≈ 0.25), 10 s from "
+          "start-up\n")
     _, result = run_scene('paper', 10.0)
     print(format_summary(summarize(result, 10.0), 'paper'))
-    return 0
+    print("\ncvt-sim demo 2/2: the ROS 2 node on the conveyor scene, driven by a scripted "
+          "controller\n")
+    return run_demo()
+
+
+def _node(args):
+    from ..node import main as node_main
+    return node_main(args.rest)
+
+
+def _bench(args):
+    from .bench import main as bench_main
+    return bench_main(args.rest)
 
 
 def _warmup(args):
@@ -121,13 +163,18 @@ def _warmup(args):
 
 def main(argv=None):
     parser = build_parser()
-    args = parser.parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] in PASS_THROUGH:  # their own parsers (and ROS arguments) take the rest
+        args = parser.parse_args(argv[:1])
+        args.rest = argv[1:]
+    else:
+        args = parser.parse_args(argv)
     if not getattr(args, 'func', None):
         parser.print_help()
         return 2
     try:
         return args.func(args)
-    except (SceneError, ParameterError, GrashofError, SimulationError) as exc:
+    except (SceneError, ParameterError, GrashofError, SimulationError, RecordingError) as exc:
         print(f"cvt-sim {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -5,8 +5,8 @@ import sys
 import numpy as np
 
 from ..scene import load_scene, parse_override
+from ..solver.fidelity import choose_fidelity, make_simulator
 from ..solver.output import COL, CSV_COLUMNS
-from ..solver.simulator import Simulator
 
 # Columns printed as integers; every other column keeps 12 significant digits (1e-9 rad on φ4
 # after hours of running at ~40 rad/s).
@@ -89,7 +89,7 @@ def progress_bar(duration):
 def run_scene(scene, duration, overrides=None, sample_dt=1e-3, progress=True):
     """Load, simulate, return (simulator, result)."""
     values = load_scene(scene, overrides)
-    sim = Simulator(values)
+    sim = make_simulator(values)
     if progress:
         bar, update = progress_bar(duration)
         try:
@@ -101,9 +101,33 @@ def run_scene(scene, duration, overrides=None, sample_dt=1e-3, progress=True):
     return sim, result
 
 
+def pick_fidelity(args, overrides):
+    """``--fidelity auto --tolerance X``: probe the fidelities against the full model and keep
+    the cheapest within X (relative error of the mean output speed and ratio)."""
+    if args.fidelity != 'auto':
+        if args.fidelity:
+            overrides['model.fidelity'] = args.fidelity
+        return
+    values = load_scene(args.scene, overrides)
+    probe = min(args.duration, 4.0)
+    fidelity, table = choose_fidelity(values, args.tolerance, probe=probe)
+    print(f"fidelity         auto (tolerance {args.tolerance:g}, probed over {probe:g} s):")
+    for name, row in table.items():
+        print(f"  {name:12s} output speed error {row['speed_error']:.2e}, ratio error "
+              f"{row['ratio_error']:.2e}, wall {row['wall_time']:.3f} s")
+    print(f"                 → {fidelity}")
+    overrides['model.fidelity'] = fidelity
+
+
 def command(args):
     """Run a scene; returns the exit code."""
-    sim, result = run_scene(args.scene, args.duration, overrides_from(args.set), args.sample_dt,
+    overrides = overrides_from(args.set)
+    pick_fidelity(args, overrides)
+    mcap = getattr(args, 'mcap', None)
+    if mcap:  # refuse a target that cannot be written before a long run, not after it
+        from .record import check_target
+        check_target(mcap, args.overwrite)
+    sim, result = run_scene(args.scene, args.duration, overrides, args.sample_dt,
                             progress=not args.quiet)
     if args.csv:
         write_csv(args.csv, result.samples)
@@ -111,6 +135,13 @@ def command(args):
     print(format_summary(summary, args.scene))
     if args.csv:
         print(f"samples          {len(result.samples)} rows → {args.csv}")
+    if mcap:
+        from .record import write_run
+        count, error = write_run(mcap, sim, result, scene=args.scene, overwrite=args.overwrite)
+        if error is not None:
+            print(f"cvt-sim run: error: {error}", file=sys.stderr)
+            return 1
+        print(f"recording        {count} messages → {mcap}")
     return 0
 
 

@@ -1,0 +1,448 @@
+"""The node's ROS interface in one place: topic names, joint names, QoS, message builders, decoders.
+
+Used by the node (publishers, subscriptions), the recorder (what it writes), replay and analysis
+(what they read). Importing this module does not import rclpy: QoS profiles are functions that
+build an rclpy ``QoSProfile`` when called, and message builders import the message packages on
+first use. The QoS values also exist as plain dicts (``QOS``) in the keys rosbag2 writes, for the
+recorder's ``offered_qos_profiles``.
+
+Sample rows are the core's output rows (``cvt_ros.solver.output.COLUMNS``, ``COL``).
+
+``joint_states`` carries, per joint ``crank, rocker, clutch_output, output_shaft`` (J1..J4):
+position φ1..φ4 [rad] (whole turns included), velocity ω1..ω4 [rad/s], effort [N·m] = motor
+torque on the crank, clutch torque on the rocker, shaft torque on the clutch output, load torque
+on the output shaft. The torsion twist is not a field: decoders take θ = φ3 − φ4. Both angles
+are float64 and grow without bound, so θ keeps an absolute precision of about
+2.2e-16·|φ4| rad (2e-12 rad at φ4 = 1e4 rad, i.e. after ~4 minutes at 40 rad/s; 3e-11 rad after an
+hour): far below anything the model resolves.
+
+Besides the rclpy builders there are byte-level CDR encoders for the recorder's hot path
+(``joint_state_cdr`` & co.: the same CDR as ``rclpy.serialization.serialize_message``, with
+zeroed padding bytes where rmw leaves them uninitialised; about 10x faster) and a decoder of
+JointState CDR bytes (``decode_joint_state_cdr``) that needs no ROS.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from .solver.output import COL
+
+__all__ = [
+    'CLOCK', 'CLUTCH_ENGAGED', 'CRANK_LENGTH_CMD', 'DIAGNOSTICS', 'JOINTS', 'JOINT_STATES',
+    'LOAD_TORQUE_CMD', 'QOS', 'TOPICS', 'TopicSpec', 'JointStateValues',
+    'POSITION_COLUMNS', 'VELOCITY_COLUMNS', 'EFFORT_COLUMNS',
+    'bool_cdr', 'clock_cdr', 'clock_msg', 'clock_qos', 'clutch_msg', 'clutch_qos',
+    'command_msg', 'command_qos', 'decode_joint_state', 'decode_joint_state_cdr',
+    'diagnostics_qos', 'float64_cdr', 'joint_order', 'joint_state_cdr', 'joint_state_from_row',
+    'joint_states_qos', 'qos_profile', 'resolve_topic', 'resolved_topics', 'set_stamp',
+    'stamp_ns', 'time_to_ns', 'topic_key',
+]
+
+# ---------------------------------------------------------------------------------- names
+#: Joint names of joint_states, J1..J4 (the node may prefix them: parameter joint_prefix).
+JOINTS = ('crank', 'rocker', 'clutch_output', 'output_shaft')
+#: Sample-row columns behind position, velocity and effort, joint by joint.
+POSITION_COLUMNS = ('phi1', 'phi2', 'phi3', 'phi4')
+VELOCITY_COLUMNS = ('omega1', 'omega2', 'omega3', 'omega4')
+EFFORT_COLUMNS = ('motor_torque', 'clutch_torque', 'shaft_torque', 'load_torque')
+_POSITION = [COL[c] for c in POSITION_COLUMNS]
+_VELOCITY = [COL[c] for c in VELOCITY_COLUMNS]
+_EFFORT = [COL[c] for c in EFFORT_COLUMNS]
+_T = COL['t']
+_FIELDS = _POSITION + _VELOCITY + _EFFORT
+
+# Topic names as the node creates them: relative (the namespace applies) except /clock and
+# /diagnostics. The keys are the node's own keys for them (CvtSimNode._topic).
+JOINT_STATES = 'joint_states'
+CLUTCH_ENGAGED = 'clutch_engaged'
+CLOCK = '/clock'
+DIAGNOSTICS = '/diagnostics'
+CRANK_LENGTH_CMD = 'crank_length_cmd'
+LOAD_TORQUE_CMD = 'load_torque_cmd'
+
+_INFINITE = {'sec': 9223372036, 'nsec': 854775807}
+
+
+def _qos(history: str, depth: int, reliability: str, durability: str) -> dict[str, Any]:
+    return {'history': history, 'depth': depth, 'reliability': reliability,
+            'durability': durability}
+
+
+#: QoS of each topic as a plain map (policy names as rosbag2 writes them).
+QOS: dict[str, dict[str, Any]] = {
+    # what robot_state_publisher, `ros2 topic echo` and PlotJuggler expect by default
+    'joint_states': _qos('keep_last', 10, 'reliable', 'volatile'),
+    # latched: a late subscriber gets the present clutch state
+    'clutch_engaged': _qos('keep_last', 1, 'reliable', 'transient_local'),
+    # rclcpp::ClockQoS, as rosbag2's player publishes it
+    'clock': _qos('keep_last', 1, 'best_effort', 'volatile'),
+    'diagnostics': _qos('keep_last', 10, 'reliable', 'volatile'),
+    'crank_length_cmd': _qos('keep_last', 10, 'reliable', 'volatile'),
+    'load_torque_cmd': _qos('keep_last', 10, 'reliable', 'volatile'),
+}
+
+
+@dataclass(frozen=True)
+class TopicSpec:
+    """One topic of the node: key, name as created (relative unless it starts with '/'),
+    message type, direction ('out' published, 'in' subscribed) and what it carries."""
+
+    key: str
+    name: str
+    type_name: str
+    direction: str
+    description: str
+
+    @property
+    def qos(self) -> dict[str, Any]:
+        return dict(QOS[self.key])
+
+
+TOPICS: dict[str, TopicSpec] = {s.key: s for s in (
+    TopicSpec('joint_states', JOINT_STATES, 'sensor_msgs/msg/JointState', 'out',
+              'one sample per control period; stamp = simulation time'),
+    TopicSpec('clutch_engaged', CLUTCH_ENGAGED, 'std_msgs/msg/Bool', 'out',
+              'one message per clutch switch (latched)'),
+    TopicSpec('clock', CLOCK, 'rosgraph_msgs/msg/Clock', 'out', 'simulation time'),
+    TopicSpec('diagnostics', DIAGNOSTICS, 'diagnostic_msgs/msg/DiagnosticArray', 'out',
+              '~1 Hz of wall time'),
+    TopicSpec('crank_length_cmd', CRANK_LENGTH_CMD, 'std_msgs/msg/Float64', 'in',
+              'crank length command [m]'),
+    TopicSpec('load_torque_cmd', LOAD_TORQUE_CMD, 'std_msgs/msg/Float64', 'in',
+              'load torque command [N·m]'),
+)}
+
+
+def resolve_topic(name: str, namespace: str = '/') -> str:
+    """Fully qualified name of ``name`` in ``namespace`` (as rclpy resolves it, no remapping)."""
+    if name.startswith('/'):
+        return name
+    ns = '/' + namespace.strip('/') if namespace.strip('/') else ''
+    return f'{ns}/{name}'
+
+
+def resolved_topics(namespace: str = '/') -> dict[str, str]:
+    """Key -> fully qualified topic name for a node in ``namespace``."""
+    return {key: resolve_topic(spec.name, namespace) for key, spec in TOPICS.items()}
+
+
+# ---------------------------------------------------------------------------------- QoS
+def qos_profile(key: str):
+    """The rclpy ``QoSProfile`` of topic ``key`` (imports rclpy)."""
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    q = QOS[key]
+    return QoSProfile(
+        history={'keep_last': HistoryPolicy.KEEP_LAST,
+                 'keep_all': HistoryPolicy.KEEP_ALL}[q['history']],
+        depth=q['depth'],
+        reliability={'reliable': ReliabilityPolicy.RELIABLE,
+                     'best_effort': ReliabilityPolicy.BEST_EFFORT}[q['reliability']],
+        durability={'volatile': DurabilityPolicy.VOLATILE,
+                    'transient_local': DurabilityPolicy.TRANSIENT_LOCAL}[q['durability']])
+
+
+def joint_states_qos():
+    """joint_states: reliable, keep last 10, volatile."""
+    return qos_profile('joint_states')
+
+
+def clutch_qos():
+    """clutch_engaged: reliable, keep last 1, transient local (latched)."""
+    return qos_profile('clutch_engaged')
+
+
+def clock_qos():
+    """/clock: best effort, keep last 1, volatile (rclcpp::ClockQoS)."""
+    return qos_profile('clock')
+
+
+def diagnostics_qos():
+    """/diagnostics: reliable, keep last 10, volatile."""
+    return qos_profile('diagnostics')
+
+
+def command_qos():
+    """crank_length_cmd, load_torque_cmd: reliable, keep last 10, volatile."""
+    return qos_profile('crank_length_cmd')
+
+
+# ---------------------------------------------------------------------------------- time
+def stamp_ns(t: float) -> int:
+    """Simulation time [s] -> integer nanoseconds (rounded, as the node stamps)."""
+    return int(round(t * 1e9))
+
+
+def set_stamp(stamp: Any, ns: int) -> None:
+    """Write ``ns`` into a builtin_interfaces/Time (``sec``, ``nanosec``)."""
+    stamp.sec, stamp.nanosec = divmod(int(ns), 1_000_000_000)
+
+
+def time_to_ns(stamp: Any) -> int:
+    """builtin_interfaces/Time (rclpy or rosbags object) -> integer nanoseconds."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+# ---------------------------------------------------------------------------------- builders
+def joint_state_from_row(row: Sequence[float], stamp: int | None = None,
+                         names: Sequence[str] = JOINTS, msg: Any = None):
+    """sensor_msgs/JointState of one sample row; ``stamp`` [ns] defaults to the row's time.
+
+    ``msg``: a JointState to fill in place (the node reuses one), else a new one.
+    """
+    import array
+
+    from sensor_msgs.msg import JointState
+
+    if msg is None:
+        msg = JointState()
+    msg.name = list(names)
+    set_stamp(msg.header.stamp, stamp_ns(row[_T]) if stamp is None else stamp)
+    msg.position = array.array('d', [float(row[i]) for i in _POSITION])
+    msg.velocity = array.array('d', [float(row[i]) for i in _VELOCITY])
+    msg.effort = array.array('d', [float(row[i]) for i in _EFFORT])
+    return msg
+
+
+def clutch_msg(engaged: bool):
+    """std_msgs/Bool: the clutch state (true = engaged)."""
+    from std_msgs.msg import Bool
+
+    return Bool(data=bool(engaged))
+
+
+def clock_msg(ns: int):
+    """rosgraph_msgs/Clock at ``ns`` nanoseconds of simulation time."""
+    from rosgraph_msgs.msg import Clock
+
+    msg = Clock()
+    set_stamp(msg.clock, ns)
+    return msg
+
+
+def command_msg(value: float):
+    """std_msgs/Float64 command (crank length [m] or load torque [N·m])."""
+    from std_msgs.msg import Float64
+
+    return Float64(data=float(value))
+
+
+# ---------------------------------------------------------------------------------- CDR bytes
+# Plain little-endian CDR (XCDR1) as rmw_fastrtps writes it: 4-byte encapsulation header, each
+# primitive aligned to its size relative to the end of the header.
+_ENCAPSULATION = b'\x00\x01\x00\x00'
+_TIME = struct.Struct('<iI')
+
+
+def _pad(offset: int, align: int) -> int:
+    return (-offset) % align
+
+
+def _string(text: str, offset: int) -> bytes:
+    data = text.encode('utf-8') + b'\x00'
+    return b'\x00' * _pad(offset, 4) + struct.pack('<I', len(data)) + data
+
+
+class _JointStateEncoder:
+    """JointState CDR for fixed joint names and frame_id: a constant layout, one pack per row."""
+
+    def __init__(self, names: Sequence[str], frame_id: str = ''):
+        body = bytearray(8)  # stamp, packed per message
+        body += _string(frame_id, len(body))
+        body += b'\x00' * _pad(len(body), 4) + struct.pack('<I', len(names))
+        for name in names:
+            body += _string(name, len(body))
+        n = len(names)
+        self._prefix = bytes(body[8:])  # frame_id and names, constant
+        parts = []
+        offset = len(body)
+        for _ in range(3):  # position, velocity, effort
+            pad = _pad(offset, 4)
+            offset += pad + 4
+            pad8 = _pad(offset, 8) if n else 0
+            parts.append((pad, pad8))
+            offset += pad8 + 8 * n
+        self.n = n
+        self.size = 4 + offset
+        fmt = '<iI' + f'{len(self._prefix)}s'
+        for pad, pad8 in parts:
+            fmt += f'{pad}xI{pad8}x{n}d'
+        self._struct = struct.Struct(fmt)
+
+    def encode(self, sec: int, nanosec: int, values: Sequence[float]) -> bytes:
+        """``values``: the 12 position, velocity and effort values, joint by joint."""
+        return _ENCAPSULATION + self._struct.pack(sec, nanosec, self._prefix, 4, *values[0:4],
+                                                  4, *values[4:8], 4, *values[8:12])
+
+
+_ENCODERS: dict[tuple[tuple[str, ...], str], _JointStateEncoder] = {}
+
+
+def joint_state_cdr(row: Sequence[float], stamp: int | None = None,
+                    names: Sequence[str] = JOINTS, frame_id: str = '') -> bytes:
+    """CDR bytes of :func:`joint_state_from_row` without rclpy (rclpy's layout, zero padding)."""
+    key = (tuple(names), frame_id)
+    encoder = _ENCODERS.get(key)
+    if encoder is None:
+        if len(names) != 4:
+            raise ValueError(f'joint_states has 4 joints, got names {list(names)!r}')
+        encoder = _ENCODERS[key] = _JointStateEncoder(key[0], frame_id)
+    ns = stamp_ns(row[_T]) if stamp is None else int(stamp)
+    sec, nanosec = divmod(ns, 1_000_000_000)
+    if hasattr(row, 'take'):  # a numpy row: one gather instead of 12 scalar reads
+        values = row.take(_FIELDS).tolist()
+    else:
+        values = [float(row[i]) for i in _FIELDS]
+    return encoder.encode(sec, nanosec, values)
+
+
+def clock_cdr(ns: int) -> bytes:
+    """CDR bytes of rosgraph_msgs/Clock at ``ns``."""
+    return _ENCAPSULATION + _TIME.pack(*divmod(int(ns), 1_000_000_000))
+
+
+def bool_cdr(value: bool) -> bytes:
+    """CDR bytes of std_msgs/Bool."""
+    return _ENCAPSULATION + (b'\x01' if value else b'\x00')
+
+
+def float64_cdr(value: float) -> bytes:
+    """CDR bytes of std_msgs/Float64."""
+    return _ENCAPSULATION + struct.pack('<d', float(value))
+
+
+# ---------------------------------------------------------------------------------- decoders
+@dataclass(frozen=True)
+class JointStateValues:
+    """A decoded joint_states sample in the joint order J1..J4 (``JOINTS``).
+
+    ``stamp_ns`` simulation time; ``position``, ``velocity``, ``effort`` 4-tuples (NaN where the
+    message had no value).
+    """
+
+    stamp_ns: int
+    position: tuple[float, ...]
+    velocity: tuple[float, ...]
+    effort: tuple[float, ...]
+
+    @property
+    def twist(self) -> float:
+        """Torsion twist θ = φ3 − φ4 [rad] (absolute precision ~2.2e-16·|φ4|)."""
+        return self.position[2] - self.position[3]
+
+    def as_columns(self) -> dict[str, float]:
+        """The sample-row columns this message carries (t, phi1..4, omega1..4, twist, torques)."""
+        out = {'t': self.stamp_ns * 1e-9}
+        out.update(zip(POSITION_COLUMNS, self.position, strict=True))
+        out.update(zip(VELOCITY_COLUMNS, self.velocity, strict=True))
+        out.update(zip(EFFORT_COLUMNS, self.effort, strict=True))
+        out['twist'] = self.twist
+        return out
+
+
+def joint_order(names: Sequence[str]) -> list[int] | None:
+    """Index of each of ``JOINTS`` in a message's name list (a name may carry a prefix, e.g.
+    ``line1_crank``); None if a joint is missing or ambiguous."""
+    order = []
+    for joint in JOINTS:
+        hits = [i for i, n in enumerate(names) if n == joint]
+        if not hits:
+            hits = [i for i, n in enumerate(names) if n.endswith(joint)]
+        if len(hits) != 1:
+            return None
+        order.append(hits[0])
+    return order
+
+
+def _pick(values: Sequence[float], order: Sequence[int]) -> tuple[float, ...]:
+    n = len(values)
+    return tuple(float(values[i]) if i < n else math.nan for i in order)
+
+
+def decode_joint_state(msg: Any, order: Sequence[int] | None = None) -> JointStateValues:
+    """JointState (rclpy or rosbags object) -> :class:`JointStateValues` in joint order.
+
+    ``order``: from :func:`joint_order` (pass it to skip the name matching per message).
+    Raises ValueError if the joints of this node are not in the message.
+    """
+    if order is None:
+        order = joint_order(list(msg.name))
+        if order is None:
+            raise ValueError(f'joint_states without the joints {JOINTS}: {list(msg.name)!r}')
+    return JointStateValues(time_to_ns(msg.header.stamp), _pick(msg.position, order),
+                            _pick(msg.velocity, order), _pick(msg.effort, order))
+
+
+class _Cursor:
+    __slots__ = ('data', 'pos')
+
+    def __init__(self, data: bytes):
+        self.data = data
+        self.pos = 4  # after the encapsulation header
+
+    def align(self, n: int) -> None:
+        self.pos += (-(self.pos - 4)) % n
+
+    def u32(self) -> int:
+        self.align(4)
+        (value,) = struct.unpack_from('<I', self.data, self.pos)
+        self.pos += 4
+        return value
+
+    def string(self) -> str:
+        n = self.u32()
+        text = self.data[self.pos:self.pos + n - 1].decode('utf-8')
+        self.pos += n
+        return text
+
+    def doubles(self) -> tuple[float, ...]:
+        n = self.u32()
+        if not n:
+            return ()
+        self.align(8)
+        values = struct.unpack_from(f'<{n}d', self.data, self.pos)
+        self.pos += 8 * n
+        return values
+
+
+def decode_joint_state_cdr(data: bytes, order: Sequence[int] | None = None
+                           ) -> tuple[JointStateValues, list[str]]:
+    """Decode sensor_msgs/JointState CDR bytes without ROS: (values in joint order, names).
+
+    Raises ValueError on bytes that are not a little-endian CDR JointState of this node.
+    """
+    if len(data) < 12 or data[1] != 1:
+        raise ValueError('not a little-endian CDR message')
+    try:
+        sec, nanosec = _TIME.unpack_from(data, 4)
+        cur = _Cursor(data)
+        cur.pos = 12
+        cur.string()  # frame_id
+        names = [cur.string() for _ in range(cur.u32())]
+        position, velocity, effort = cur.doubles(), cur.doubles(), cur.doubles()
+    except (struct.error, UnicodeDecodeError) as exc:
+        raise ValueError(f'damaged JointState bytes: {exc}') from None
+    if order is None:
+        order = joint_order(names)
+        if order is None:
+            raise ValueError(f'joint_states without the joints {JOINTS}: {names!r}')
+    values = JointStateValues(sec * 1_000_000_000 + nanosec, _pick(position, order),
+                              _pick(velocity, order), _pick(effort, order))
+    return values, names
+
+
+def topic_key(name: str, keys: Mapping[str, str] | None = None) -> str | None:
+    """The interface key of a recorded topic name (``/line1/joint_states`` -> 'joint_states');
+    ``keys`` maps resolved names to keys when known. None for a foreign topic."""
+    if keys and name in keys:
+        return keys[name]
+    for key, spec in TOPICS.items():
+        if name == spec.name or (not spec.name.startswith('/')
+                                 and name.endswith('/' + spec.name)):
+            return key
+    return None

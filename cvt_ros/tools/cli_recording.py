@@ -1,0 +1,145 @@
+"""``cvt-sim`` commands for recordings: replay, analyze, export, recover (added to cli.py's parser).
+
+Each command checks its inputs, calls the library and returns an exit code: 0 done, 1 the input
+was damaged (partial results were produced), 2 nothing could be done. Errors are one line on
+stderr, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from typing import Any
+
+
+def _rate(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'{text!r} is not a number') from None
+    if not 0.0 < value < float('inf'):
+        raise argparse.ArgumentTypeError(f'{text!r} must be a positive finite number')
+    return value
+
+
+def _seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'{text!r} is not a number') from None
+    if not 0.0 <= value < float('inf'):
+        raise argparse.ArgumentTypeError(f'{text!r} must be a finite number ≥ 0')
+    return value
+
+
+def add_parsers(sub: Any) -> None:
+    """Add replay, analyze, export and recover to the ``cvt-sim`` subparsers."""
+    replay = sub.add_parser(
+        'replay', help='publish a recording on its ROS 2 topics with its timing and /clock',
+        description='Publish the messages of an MCAP recording on their topics, with their '
+                    'recorded types and QoS (latched topics stay latched), at their recorded '
+                    'times scaled by --rate, publishing /clock. For users without rosbag2 '
+                    '(`ros2 bag play FILE` does the same).')
+    replay.add_argument('file', help='MCAP recording')
+    replay.add_argument('--rate', type=_rate, default=1.0, metavar='R',
+                        help='speed factor (2 = twice as fast; default 1)')
+    replay.add_argument('--topics', nargs='+', metavar='TOPIC',
+                        help='replay only these topics (default: all)')
+    replay.add_argument('--loop', action='store_true', help='start over at the end')
+    replay.add_argument('--no-clock', action='store_true',
+                        help='do not publish /clock (unless it is a recorded topic)')
+    replay.add_argument('--delay', type=_seconds, default=1.0, metavar='S',
+                        help='wait S seconds before the first message, for subscribers to '
+                             'connect (default 1)')
+    replay.add_argument('--wait-for-subscribers', action='store_true',
+                        help='before starting, wait until a subscriber (and every subscriber '
+                             'the ROS graph knows of on these topics) is connected')
+    replay.set_defaults(func=_replay)
+
+    analyze = sub.add_parser(
+        'analyze', help='crank-cycle metrics (ratio, ripple, twist, clutch torque, efficiency, '
+                        'energy) and plots of a recording or CSV',
+        description='Read a recording of the node or of `cvt-sim run --mcap` (or a CSV of '
+                    '`cvt-sim run --csv` / `cvt-sim export`), split it into crank cycles and '
+                    'print per-run and per-cycle metrics (definitions: docs/recording.md).')
+    analyze.add_argument('file', help='MCAP recording or CSV')
+    analyze.add_argument('--plots', metavar='DIR', help='write PNG figures into DIR')
+    analyze.add_argument('--scene', metavar='SCENE',
+                         help='scene (name or .yaml) for the parameters, when the file has none '
+                              '(a CSV): needed for the energy residual')
+    analyze.add_argument('--namespace', metavar='NS',
+                         help='the node namespace to analyse when a recording has several')
+    analyze.add_argument('--cycles', default='10', metavar='N|all',
+                         help='per-cycle rows to print: the last N (default 10), all, or 0')
+    analyze.add_argument('--cycles-csv', metavar='FILE', help='write every cycle\'s metrics')
+    analyze.add_argument('--json', metavar='FILE', help='write all results as JSON')
+    analyze.set_defaults(func=_analyze)
+
+    export = sub.add_parser(
+        'export', help='a recording as CSV (samples, and clutch switches and commands)',
+        description='Write the joint_states samples of a recording as CSV with the columns of '
+                    '`cvt-sim run --csv` plus motor_torque and shaft_torque.')
+    export.add_argument('file', help='MCAP recording')
+    export.add_argument('--csv', required=True, metavar='OUT', help='sample CSV to write')
+    export.add_argument('--events', metavar='OUT',
+                        help='also write clutch switches and commands (run, t, topic, value)')
+    export.add_argument('--scene', metavar='SCENE',
+                        help='scene for the parameters when the recording has none')
+    export.add_argument('--namespace', metavar='NS', help='node namespace to export')
+    export.set_defaults(func=_export)
+
+    recover = sub.add_parser(
+        'recover', help='turn a crashed (unfinished) or damaged recording into a valid file',
+        description='Copy everything readable from a recording that was not finished (the '
+                    'process was killed) or is damaged into a new, finished MCAP file with '
+                    'summary, statistics and rosbag2 metadata.')
+    recover.add_argument('file', help='damaged MCAP recording')
+    recover.add_argument('-o', '--output', metavar='OUT',
+                         help='recovered file (default: FILE with .recovered.mcap)')
+    recover.add_argument('--overwrite', action='store_true', help='replace OUT if it exists')
+    recover.set_defaults(func=_recover)
+
+
+def _replay(args: Any) -> int:
+    from .replay import command
+    return command(args)
+
+
+def _analyze(args: Any) -> int:
+    import matplotlib
+    matplotlib.use('Agg')
+    from .analyze import command
+    return command(args)
+
+
+def _export(args: Any) -> int:
+    from .export import command
+    return command(args)
+
+
+def _recover(args: Any) -> int:
+    from ..recording import RecordingError, recover, summary
+
+    out = args.output
+    if not out:
+        root = args.file[:-5] if args.file.endswith('.mcap') else args.file
+        out = root + '.recovered.mcap'
+    if not os.path.exists(args.file):
+        print(f'cvt-sim recover: error: {args.file}: no such file', file=sys.stderr)
+        return 2
+    try:
+        count = recover(args.file, out, overwrite=args.overwrite)
+    except (RecordingError, ValueError) as exc:
+        print(f'cvt-sim recover: error: {exc}', file=sys.stderr)
+        return 2
+    info = summary(out)
+    if count == 0:
+        print(f'cvt-sim recover: error: {args.file}: no readable message (an empty file was '
+              f'written to {out})', file=sys.stderr)
+        return 1
+    span = info.duration_ns * 1e-9
+    print(f'recovered        {count} messages ({span:.3f} s) → {out}')
+    for name, topic in sorted(info.topics.items()):
+        print(f'  {name:32s} {topic.type_name:36s} {topic.message_count}')
+    return 0

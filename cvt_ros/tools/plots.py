@@ -1,0 +1,338 @@
+"""Figures of ``cvt-sim analyze --plots DIR`` (matplotlib, Agg backend, PNG).
+
+* ``fig2_twist_cycle.png``: torsion twist θ = φ3 − φ4 over one crank cycle (the paper's Fig. 2),
+  the last complete cycle over the four before it, engaged phases shaded;
+* ``fig3_speeds_cycle.png``: angular speeds ω1..ω4 of the members over the same cycle (Fig. 3);
+* ``timeseries.png``: speeds, ratio (instantaneous and per cycle), clutch state and engaged
+  fraction, clutch and load torque over the whole run, commands marked;
+* ``step_NN_<topic>.png``: the response to each command: commanded and actual value, the ratio
+  per cycle with its 10–90 % rise and ±2 % settling, and the output speed.
+
+With several runs (resets) every file name gets a ``runN_`` prefix.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+
+from .analyze import TWO_PI, RunAnalysis, Trace
+
+__all__ = ['plot_all']
+
+DPI = 120
+MAX_POINTS = 6000   # longer series are drawn as a min/max envelope per pixel column
+COLORS = {'omega1': '#1f77b4', 'omega2': '#2ca02c', 'omega3': '#ff7f0e', 'omega4': '#d62728',
+          'engaged': '#9ecae1', 'twist': '#6a3d9a', 'clutch': '#8c564b', 'load': '#7f7f7f'}
+LABELS = ('ω1 crank (motor)', 'ω2 rocker', 'ω3 clutch output', 'ω4 output shaft')
+
+
+def _plt():
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def _envelope(t: np.ndarray, y: np.ndarray, points: int = MAX_POINTS
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """At most ~``points`` points that keep every extreme (min and max per bucket)."""
+    n = len(t)
+    if n <= points:
+        return t, y
+    buckets = points // 2
+    edges = np.linspace(0, n, buckets + 1).astype(int)
+    tt, yy = [], []
+    for a, b in zip(edges[:-1], edges[1:], strict=True):
+        if b <= a:
+            continue
+        seg = y[a:b]
+        i, j = int(np.nanargmin(seg)) if np.any(np.isfinite(seg)) else 0, \
+            int(np.nanargmax(seg)) if np.any(np.isfinite(seg)) else 0
+        for k in sorted((i, j)):
+            tt.append(t[a + k])
+            yy.append(seg[k])
+    return np.asarray(tt), np.asarray(yy)
+
+
+def _engaged_spans(trace: Trace, ta: float, tb: float) -> list[tuple[float, float]]:
+    if trace.initial_engaged is None:
+        return []
+    inside = (trace.switch_t > ta) & (trace.switch_t < tb)
+    knots = [ta, *trace.switch_t[inside].tolist(), tb]
+    states = trace.engaged_at(np.asarray(knots[:-1]))
+    return [(a, b) for a, b, on in zip(knots[:-1], knots[1:], states, strict=True) if on > 0.5]
+
+
+def _cycle_samples(analysis: RunAnalysis, k: int) -> dict[str, np.ndarray]:
+    """Samples of cycle k with the interpolated boundary points, on a crank-angle axis [deg]."""
+    tr = analysis.trace
+    ta, tb = analysis.boundaries[k], analysis.boundaries[k + 1]
+    inside = np.flatnonzero((tr.t > ta) & (tr.t < tb))
+    t = np.concatenate([[ta], tr.t[inside], [tb]])
+
+    def series(y: np.ndarray) -> np.ndarray:
+        return np.interp(t, tr.t, y)
+
+    base = TWO_PI * math.floor(np.interp(ta, tr.t, tr.phi[:, 0]) / TWO_PI + 0.5)
+    angle = np.degrees(series(tr.phi[:, 0]) - base)
+    angle[0], angle[-1] = 0.0, 360.0
+    out = {'t': t, 'angle': angle, 'twist': series(tr.twist)}
+    for j in range(4):
+        out[f'omega{j + 1}'] = series(tr.omega[:, j])
+    return out
+
+
+def _to_angle(analysis: RunAnalysis, k: int, times: np.ndarray) -> np.ndarray:
+    tr = analysis.trace
+    ta = analysis.boundaries[k]
+    base = TWO_PI * math.floor(np.interp(ta, tr.t, tr.phi[:, 0]) / TWO_PI + 0.5)
+    return np.degrees(np.interp(times, tr.t, tr.phi[:, 0]) - base)
+
+
+def _shade_engaged(ax, analysis: RunAnalysis, k: int, label: bool = True) -> None:
+    tr = analysis.trace
+    spans = _engaged_spans(tr, analysis.boundaries[k], analysis.boundaries[k + 1])
+    for i, (a, b) in enumerate(spans):
+        xa, xb = _to_angle(analysis, k, np.array([a, b]))
+        ax.axvspan(xa, xb, color=COLORS['engaged'], alpha=0.35, lw=0,
+                   label='clutch engaged' if label and i == 0 else None)
+
+
+def _cycle_title(analysis: RunAnalysis, k: int) -> str:
+    cy = analysis.cycles
+    return (f"cycle {k + 1} of {len(cy)}, t = {cy['t_start'][k]:.4f}–{cy.t_end[k]:.4f} s, "
+            f"i = {cy['ratio'][k]:.4f}")
+
+
+def fig_twist_cycle(analysis: RunAnalysis, path: str) -> str:
+    plt = _plt()
+    k = len(analysis.cycles) - 1
+    fig, ax = plt.subplots(figsize=(8, 4.8))
+    for j in range(max(0, k - 4), k):
+        c = _cycle_samples(analysis, j)
+        ax.plot(c['angle'], c['twist'], color='0.75', lw=0.9,
+                label='the four cycles before' if j == max(0, k - 4) else None)
+    c = _cycle_samples(analysis, k)
+    _shade_engaged(ax, analysis, k)
+    ax.plot(c['angle'], c['twist'], color=COLORS['twist'], lw=1.8, label='θ = φ3 − φ4')
+    peak = int(np.argmax(c['twist']))
+    ax.plot(c['angle'][peak], c['twist'][peak], 'o', color=COLORS['twist'])
+    ax.annotate(f"peak {c['twist'][peak]:.4f} rad", (c['angle'][peak], c['twist'][peak]),
+                textcoords='offset points', xytext=(8, 4), fontsize=9)
+    ax.axhline(0.0, color='k', lw=0.6)
+    ax.set_xlim(0, 360)
+    ax.set_xticks(range(0, 361, 45))
+    ax.set_xlabel('crank angle φ1 within the cycle [deg]')
+    ax.set_ylabel('torsion twist θ [rad]')
+    ax.set_title('Torsion shaft twist over one crank cycle (paper Fig. 2)\n'
+                 + _cycle_title(analysis, k), fontsize=11)
+    ax.grid(alpha=0.3)
+    ax.legend(loc='best', fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+    return path
+
+
+def fig_speeds_cycle(analysis: RunAnalysis, path: str) -> str:
+    plt = _plt()
+    k = len(analysis.cycles) - 1
+    c = _cycle_samples(analysis, k)
+    fig, ax = plt.subplots(figsize=(8, 4.8))
+    _shade_engaged(ax, analysis, k)
+    for j in range(4):
+        name = f'omega{j + 1}'
+        ax.plot(c['angle'], c[name], color=COLORS[name], lw=1.6, label=LABELS[j])
+    ax.axhline(0.0, color='k', lw=0.6)
+    ax.set_xlim(0, 360)
+    ax.set_xticks(range(0, 361, 45))
+    ax.set_xlabel('crank angle φ1 within the cycle [deg]')
+    ax.set_ylabel('angular speed [rad/s]')
+    ax.set_title('Angular speeds of the members over one crank cycle (paper Fig. 3)\n'
+                 + _cycle_title(analysis, k), fontsize=11)
+    ax.grid(alpha=0.3)
+    ax.legend(loc='center left', bbox_to_anchor=(1.01, 0.5), fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+    return path
+
+
+def _mark_commands(axes, trace: Trace) -> None:
+    for c in trace.commands:
+        for ax in axes:
+            ax.axvline(c.t, color='k', ls=':', lw=0.9)
+    if trace.commands:
+        top = axes[0]
+        for c in trace.commands:
+            what = 'a' if c.key == 'crank_length_cmd' else 'M4'
+            top.annotate(f'{what} → {c.value:g}', (c.t, 1.0), xycoords=('data', 'axes fraction'),
+                         xytext=(2, -10), textcoords='offset points', fontsize=8)
+
+
+def fig_timeseries(analysis: RunAnalysis, path: str) -> str:
+    plt = _plt()
+    tr, cy = analysis.trace, analysis.cycles
+    t = tr.t
+    fig, axes = plt.subplots(4, 1, figsize=(10, 9.5), sharex=True,
+                             gridspec_kw={'height_ratios': [3, 2, 1.4, 2]})
+    ax = axes[0]
+    for j in (0, 3):
+        name = f'omega{j + 1}'
+        ax.plot(*_envelope(t, tr.omega[:, j]), color=COLORS[name], lw=0.9, label=LABELS[j])
+    if len(cy):
+        ax.step(np.append(cy['t_start'], cy.t_end[-1]),
+                np.append(cy['output_speed'], cy['output_speed'][-1]), where='post',
+                color='k', lw=1.0, label='ω4 mean per cycle')
+    ax.set_ylabel('speed [rad/s]')
+    ax.legend(loc='best', fontsize=8, ncol=3)
+    ax.set_title(f'{os.path.basename(tr.source)}: run {tr.run_index + 1}, '
+                 f'{t[0]:.3f}–{t[-1]:.3f} s', fontsize=11)
+
+    ax = axes[1]
+    with np.errstate(invalid='ignore', divide='ignore'):
+        inst = tr.omega[:, 3] / tr.omega[:, 0]
+    ax.plot(*_envelope(t, inst), color='0.7', lw=0.7, label='ω4/ω1 (instantaneous)')
+    if len(cy):
+        ax.step(np.append(cy['t_start'], cy.t_end[-1]), np.append(cy['ratio'], cy['ratio'][-1]),
+                where='post', color=COLORS['omega4'], lw=1.4, label='i per crank cycle')
+        lo, hi = np.nanpercentile(cy['ratio'], [1, 99])
+        pad = max(0.25 * (hi - lo), 0.05 * abs(hi), 1e-3)
+        ax.set_ylim(min(lo, np.nanmin(cy['ratio'][-len(cy) // 2:])) - pad, hi + pad)
+    ax.set_ylabel('ratio i [-]')
+    ax.legend(loc='best', fontsize=8)
+
+    ax = axes[2]
+    if tr.initial_engaged is not None:
+        if len(cy) <= 60:
+            knots = np.concatenate([[t[0]], tr.switch_t, [t[-1]]])
+            states = tr.engaged_at(knots)
+            ax.step(knots, states, where='post', color=COLORS['omega3'], lw=0.8,
+                    label='engaged (1) / overrunning (0)')
+        if len(cy):
+            ax.step(np.append(cy['t_start'], cy.t_end[-1]),
+                    np.append(cy['engaged_fraction'], cy['engaged_fraction'][-1]), where='post',
+                    color='k', lw=1.2, label='engaged fraction per cycle')
+        ax.set_ylim(-0.05, 1.15)
+        ax.legend(loc='upper right', fontsize=8, ncol=2)
+    else:
+        ax.text(0.5, 0.5, 'clutch state not recorded', transform=ax.transAxes, ha='center')
+    ax.set_ylabel('clutch [-]')
+
+    ax = axes[3]
+    ax.plot(*_envelope(t, tr.effort[:, 1]), color=COLORS['clutch'], lw=0.7,
+            label='clutch torque Tc')
+    if len(cy):
+        ax.step(np.append(cy['t_start'], cy.t_end[-1]),
+                np.append(cy['clutch_torque_mean'], cy['clutch_torque_mean'][-1]),
+                where='post', color=COLORS['omega1'], lw=1.2, label='Tc mean per cycle')
+    ax.plot(*_envelope(t, tr.effort[:, 3]), color='k', ls='--', lw=1.0,
+            label='load torque M4')
+    ax.set_ylabel('torque [N·m]')
+    ax.set_xlabel('simulation time t [s]')
+    ax.legend(loc='best', fontsize=8)
+    for a in axes:
+        a.grid(alpha=0.3)
+    _mark_commands(axes, tr)
+    fig.tight_layout()
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+    return path
+
+
+def fig_step(analysis: RunAnalysis, index: int, path: str) -> str:
+    plt = _plt()
+    tr, cy = analysis.trace, analysis.cycles
+    step = analysis.steps[index]
+    c = step.command
+    span = max(step.window_end - c.t, 1e-3)
+    t0 = max(tr.t[0], c.t - max(0.15 * span, 0.1))
+    t1 = step.window_end
+    sel = (tr.t >= t0) & (tr.t <= t1)
+    t = tr.t[sel]
+    fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True)
+    ax = axes[0]
+    crank = c.key == 'crank_length_cmd'
+    scale, unit = (1e3, 'mm') if crank else (1.0, 'N·m')
+    name = 'crank length a' if crank else 'load torque M4'
+    prev = step.previous if math.isfinite(step.previous) else c.value
+    ax.step([t0, c.t, t1], [prev * scale, c.value * scale, c.value * scale], where='post',
+            color='k', ls='--', lw=1.2, label=f'command ({c.key})')
+    actual = tr.crank_length[sel] if crank else tr.effort[sel, 3]
+    if np.any(np.isfinite(actual)):
+        ax.plot(*_envelope(t, actual * scale), color=COLORS['omega1'], lw=1.2,
+                label=f'{name} (actual)')
+    ax.set_ylabel(f'{name} [{unit}]')
+    ax.legend(loc='best', fontsize=8)
+    what = 'crank length' if crank else 'load torque'
+    ax.set_title(f'Response to {what} {prev:g} → {c.value:g} {unit if not crank else "m"} '
+                 f'at t = {c.t:.4f} s', fontsize=11)
+
+    ax = axes[1]
+    with np.errstate(invalid='ignore', divide='ignore'):
+        inst = tr.omega[sel, 3] / tr.omega[sel, 0]
+    ax.plot(*_envelope(t, inst), color='0.75', lw=0.7, label='ω4/ω1 (instantaneous)')
+    ksel = (cy['t_start'] >= t0) & (cy.t_end <= t1)
+    mid = cy['t_start'][ksel] + 0.5 * cy['period'][ksel]
+    ax.plot(mid, cy['ratio'][ksel], 'o-', color=COLORS['omega4'], ms=3, lw=1.2,
+            label='i per crank cycle')
+    if math.isfinite(step.ratio_before) and math.isfinite(step.ratio_after):
+        change = step.ratio_after - step.ratio_before
+        for level, style in ((step.ratio_before, ':'), (step.ratio_after, ':')):
+            ax.axhline(level, color='k', ls=style, lw=0.8)
+        ax.axhspan(step.ratio_after - 0.02 * abs(change), step.ratio_after + 0.02 * abs(change),
+                   color='g', alpha=0.12, label='±2 % band')
+        text = []
+        if math.isfinite(step.rise_time):
+            text.append(f'rise 10–90 %: {step.rise_time * 1e3:.0f} ms')
+        text.append('settling ±2 %: ' + (f'{step.settling_time * 1e3:.0f} ms'
+                                         if math.isfinite(step.settling_time)
+                                         else 'not settled in the window'))
+        ax.text(0.99, 0.05, '\n'.join(text), transform=ax.transAxes, ha='right', va='bottom',
+                fontsize=9, bbox={'facecolor': 'white', 'alpha': 0.8, 'lw': 0})
+        if math.isfinite(step.settling_time):
+            ax.axvline(c.t + step.settling_time, color='g', lw=0.9)
+    if np.any(ksel):
+        lo, hi = np.nanmin(cy['ratio'][ksel]), np.nanmax(cy['ratio'][ksel])
+        pad = max(0.2 * (hi - lo), 0.02 * abs(hi), 1e-3)
+        ax.set_ylim(lo - pad, hi + pad)
+    ax.set_ylabel('ratio i [-]')
+    ax.legend(loc='best', fontsize=8)
+
+    ax = axes[2]
+    ax.plot(*_envelope(t, tr.omega[sel, 3]), color=COLORS['omega4'], lw=0.8,
+            label='ω4 output shaft')
+    ax.plot(mid, cy['output_speed'][ksel], 'o-', color='k', ms=3, lw=1.0,
+            label='ω4 mean per cycle')
+    ax.set_ylabel('output speed [rad/s]')
+    ax.set_xlabel('simulation time t [s]')
+    ax.legend(loc='best', fontsize=8)
+    for a in axes:
+        a.axvline(c.t, color='k', ls=':', lw=0.9)
+        a.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=DPI)
+    plt.close(fig)
+    return path
+
+
+def plot_all(analyses: list[RunAnalysis], outdir: str) -> list[str]:
+    """Write every figure of every run into ``outdir`` (created); returns the file paths."""
+    os.makedirs(outdir, exist_ok=True)
+    files = []
+    for analysis in analyses:
+        prefix = f'run{analysis.trace.run_index + 1}_' if len(analyses) > 1 else ''
+
+        def out(name: str, prefix: str = prefix) -> str:
+            return os.path.join(outdir, prefix + name)
+        if len(analysis.cycles):
+            files.append(fig_twist_cycle(analysis, out('fig2_twist_cycle.png')))
+            files.append(fig_speeds_cycle(analysis, out('fig3_speeds_cycle.png')))
+        files.append(fig_timeseries(analysis, out('timeseries.png')))
+        for i, step in enumerate(analysis.steps):
+            if len(analysis.cycles):
+                files.append(fig_step(analysis, i, out(f'step_{i + 1:02d}_{step.command.key}.png')))
+    return files

@@ -1,0 +1,403 @@
+"""Recording simulations to MCAP (cvt_ros.tools.record, cvt_ros.interface, `cvt-sim run --mcap`).
+
+Files are opened by two independent readers — ``mcap.reader.make_reader`` and
+``rosbags.highlevel.AnyReader`` (which builds its types only from the definitions embedded in the
+file) — and compared with what the simulation produced. Crash safety is tested with real
+signals on a child process that records in real time, as the node does.
+"""
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+import yaml
+from mcap.reader import make_reader
+from rclpy.serialization import deserialize_message
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2.metadata import parse_qos
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool, Float64
+
+from cvt_ros import interface as I
+from cvt_ros.recording import (
+    RecordingError,
+    RecordingReadWarning,
+    message_definition_text,
+    read_messages,
+    summary,
+    type_description_hash,
+)
+from cvt_ros.recording._cdr import cdr_size
+from cvt_ros.solver.output import COL
+from cvt_ros.tools.record import METADATA_NAME, SimulationRecorder, benchmark, write_run
+from cvt_ros.tools.run import run_scene
+
+CLI = [sys.executable, '-m', 'cvt_ros']
+TYPES = {'/joint_states': 'sensor_msgs/msg/JointState', '/clutch_engaged': 'std_msgs/msg/Bool',
+         '/clock': 'rosgraph_msgs/msg/Clock',
+         '/diagnostics': 'diagnostic_msgs/msg/DiagnosticArray',
+         '/crank_length_cmd': 'std_msgs/msg/Float64', '/load_torque_cmd': 'std_msgs/msg/Float64'}
+QOS_KEYS = ['history', 'depth', 'reliability', 'durability', 'deadline', 'lifespan',
+            'liveliness', 'liveliness_lease_duration', 'avoid_ros_namespace_conventions']
+
+
+def _env():
+    env = dict(os.environ)
+    env.setdefault('AMENT_PREFIX_PATH', sys.prefix)
+    env['PYTHONUNBUFFERED'] = '1'
+    return env
+
+
+@pytest.fixture(scope='module')
+def paper_run(tmp_path_factory):
+    """The paper scene, 0.6 s at 1 ms, recorded in-process: (path, result)."""
+    path = tmp_path_factory.mktemp('rec') / 'paper.mcap'
+    sim, result = run_scene('paper', 0.6, sample_dt=1e-3, progress=False)
+    count, error = write_run(path, sim, result, scene='paper')
+    assert error is None and count > 1200
+    return path, result
+
+
+# ---------------------------------------------------------------------------------- interface
+def test_interface_matches_the_node():
+    from cvt_ros import node
+
+    assert I.JOINTS == node.JOINTS
+    pairs = {'joint_states': node.JOINT_STATES_QOS, 'clutch_engaged': node.CLUTCH_QOS,
+             'clock': node.CLOCK_QOS, 'diagnostics': node.DIAGNOSTICS_QOS,
+             'crank_length_cmd': node.COMMAND_QOS, 'load_torque_cmd': node.COMMAND_QOS}
+    for key, profile in pairs.items():
+        assert I.qos_profile(key) == profile, key
+    assert I.resolved_topics('/line1') == {
+        'joint_states': '/line1/joint_states', 'clutch_engaged': '/line1/clutch_engaged',
+        'clock': '/clock', 'diagnostics': '/diagnostics',
+        'crank_length_cmd': '/line1/crank_length_cmd',
+        'load_torque_cmd': '/line1/load_torque_cmd'}
+
+
+def test_fast_cdr_encoders_decode_like_rclpy_messages():
+    row = np.random.default_rng(3).normal(size=len(COL)) * 1e3
+    row[COL['t']] = 12.345678901
+    for names in (I.JOINTS, ['line1_' + j for j in I.JOINTS]):
+        msg = I.joint_state_from_row(row, names=names)
+        data = I.joint_state_cdr(row, names=names)
+        assert len(data) == cdr_size(msg)
+        assert deserialize_message(data, JointState) == msg
+        assert msg.header.stamp.sec == 12 and msg.header.stamp.nanosec == 345678901
+        values, got_names = I.decode_joint_state_cdr(data)
+        assert got_names == list(names)
+        assert values == I.decode_joint_state(msg)
+        assert values.position == tuple(row[[COL[c] for c in I.POSITION_COLUMNS]])
+        assert values.effort == tuple(row[[COL[c] for c in I.EFFORT_COLUMNS]])
+        assert values.twist == row[COL['phi3']] - row[COL['phi4']]
+    assert deserialize_message(I.clock_cdr(5_000_000_001), Clock) == I.clock_msg(5_000_000_001)
+    assert deserialize_message(I.bool_cdr(True), Bool) == I.clutch_msg(True)
+    assert deserialize_message(I.float64_cdr(0.04), Float64) == I.command_msg(0.04)
+    with pytest.raises(ValueError, match='joints'):
+        I.decode_joint_state_cdr(I.joint_state_cdr(row, names=['a', 'b', 'c', 'd']))
+
+
+# ---------------------------------------------------------------------------------- the file
+def test_run_recording_read_by_mcap_reader(paper_run):
+    path, result = paper_run
+    switches = [s for s in result.switches if s.kind != 'graze']
+    n = len(result.samples)
+    with path.open('rb') as f:
+        reader = make_reader(f, validate_crcs=True)
+        assert reader.get_header().profile == 'ros2'
+        index = reader.get_summary()
+        by_topic = {c.topic: c for c in index.channels.values()}
+        assert set(by_topic) == set(TYPES)
+        for topic, channel in by_topic.items():
+            schema = index.schemas[channel.schema_id]
+            assert (schema.name, schema.encoding) == (TYPES[topic], 'ros2msg')
+            assert schema.data.decode() == message_definition_text(TYPES[topic])
+            assert channel.message_encoding == 'cdr'
+            assert channel.metadata['topic_type_hash'] == type_description_hash(TYPES[topic])
+            qos = yaml.safe_load(channel.metadata['offered_qos_profiles'])
+            assert list(qos[0]) == QOS_KEYS
+            parse_qos(qos)  # rosbags' own rosbag2 QoS parser accepts it
+            key = I.topic_key(topic)
+            for k in ('history', 'depth', 'reliability', 'durability'):
+                assert qos[0][k] == I.QOS[key][k]
+        stats = index.statistics
+        counts = {by_topic_id.topic: stats.channel_message_counts.get(cid, 0)
+                  for cid, by_topic_id in index.channels.items()}
+        assert counts == {'/joint_states': n, '/clock': n, '/clutch_engaged': len(switches) + 1,
+                          '/diagnostics': 0, '/crank_length_cmd': 0, '/load_torque_cmd': 0}
+        assert index.chunk_indexes and all(ci.message_index_offsets
+                                           for ci in index.chunk_indexes)
+        metadata = {m.name: m.metadata for m in reader.iter_metadata()}
+        messages = [(c.topic, m.log_time, m.publish_time, m.data)
+                    for _, c, m in reader.iter_messages(log_time_order=False)]
+    assert set(metadata) == {METADATA_NAME, 'rosbag2'}
+    meta = metadata[METADATA_NAME]
+    params = yaml.safe_load(meta['parameters'])
+    assert params['inertia.output'] == 0.5 and params['linkage.crank_length'] == 0.03
+    assert meta['scene'] == 'paper' and meta['joint_names'] == ','.join(I.JOINTS)
+    bag = yaml.safe_load(metadata['rosbag2']['serialized_metadata'])
+    assert bag['message_count'] == len(messages) and bag['custom_data']['cvt_ros.scene'] == 'paper'
+    logs = [m[1] for m in messages]
+    assert logs == sorted(logs)                      # monotonic, in file order
+    assert all(m[1] == m[2] for m in messages)       # no reset: log time == simulation time
+    # clutch: the state at t = 0, then every switch at its exact event time
+    clutch = [(m[1], deserialize_message(m[3], Bool).data) for m in messages
+              if m[0] == '/clutch_engaged']
+    assert clutch[0] == (0, bool(result.samples[0, COL['engaged']]))
+    assert clutch[1:] == [(round(s.t * 1e9), s.engaged) for s in switches]
+    # each switch sits between the samples around it, as the node publishes it
+    order = [m[0] for m in messages]
+    first_switch = order.index('/clutch_engaged', 1)
+    assert messages[first_switch - 1][1] <= messages[first_switch][1] <= \
+        messages[first_switch + 1][1]
+    js = [deserialize_message(m[3], JointState) for m in messages if m[0] == '/joint_states']
+    for msg, row in zip(js, result.samples, strict=True):
+        assert I.time_to_ns(msg.header.stamp) == round(row[COL['t']] * 1e9)
+        assert list(msg.position) == list(row[[COL[c] for c in I.POSITION_COLUMNS]])
+        assert list(msg.velocity) == list(row[[COL[c] for c in I.VELOCITY_COLUMNS]])
+        assert list(msg.effort) == list(row[[COL[c] for c in I.EFFORT_COLUMNS]])
+    clocks = [I.time_to_ns(deserialize_message(m[3], Clock).clock) for m in messages
+              if m[0] == '/clock']
+    assert clocks == [round(t * 1e9) for t in result.samples[:, COL['t']]]
+
+
+def test_run_recording_read_by_rosbags(paper_run):
+    path, result = paper_run
+    switches = [s for s in result.switches if s.kind != 'graze']
+    with AnyReader([path]) as reader:
+        assert {c.topic: (c.msgtype, c.msgcount) for c in reader.connections} == {
+            '/joint_states': (TYPES['/joint_states'], len(result.samples)),
+            '/clock': (TYPES['/clock'], len(result.samples)),
+            '/clutch_engaged': (TYPES['/clutch_engaged'], len(switches) + 1),
+            '/diagnostics': (TYPES['/diagnostics'], 0),
+            '/crank_length_cmd': (TYPES['/crank_length_cmd'], 0),
+            '/load_torque_cmd': (TYPES['/load_torque_cmd'], 0)}
+        got = [(c.topic, t, reader.deserialize(raw, c.msgtype)) for c, t, raw in reader.messages()]
+    js = [(t, m) for topic, t, m in got if topic == '/joint_states']
+    assert len(js) == len(result.samples)
+    for (t, msg), row in zip(js, result.samples, strict=True):
+        assert t == round(row[COL['t']] * 1e9) == I.time_to_ns(msg.header.stamp)
+        assert list(msg.name) == list(I.JOINTS)
+        values = I.decode_joint_state(msg)   # the decoder takes rosbags objects too
+        assert values.position == tuple(row[[COL[c] for c in I.POSITION_COLUMNS]])
+        assert values.velocity == tuple(row[[COL[c] for c in I.VELOCITY_COLUMNS]])
+        assert values.effort == tuple(row[[COL[c] for c in I.EFFORT_COLUMNS]])
+    clutch = [(t, m.data) for topic, t, m in got if topic == '/clutch_engaged']
+    assert clutch[1:] == [(round(s.t * 1e9), s.engaged) for s in switches]
+
+
+def test_cli_run_mcap_and_target_errors(tmp_path):
+    out = tmp_path / 'cli.mcap'
+    proc = subprocess.run([*CLI, 'run', 'paper', '--duration', '0.2', '--mcap', str(out)],
+                          capture_output=True, text=True, timeout=120, env=_env())
+    assert proc.returncode == 0, proc.stderr
+    assert f'messages → {out}' in proc.stdout
+    info = summary(out)
+    assert info.complete and info.topics['/joint_states'].message_count == 201
+    for args, fragment in (
+            ([str(out)], 'file exists (use --overwrite'),
+            ([str(tmp_path / 'no' / 'dir.mcap')], 'no such directory'),
+            ([str(tmp_path)], 'is a directory')):
+        bad = subprocess.run([*CLI, 'run', 'paper', '--duration', '0.1', '--mcap', *args],
+                             capture_output=True, text=True, timeout=120, env=_env())
+        assert bad.returncode == 2 and fragment in bad.stderr, bad.stderr
+        assert 'Traceback' not in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
+    again = subprocess.run([*CLI, 'run', 'paper', '--duration', '0.1', '--mcap', str(out),
+                            '--overwrite'], capture_output=True, text=True, timeout=120,
+                           env=_env())
+    assert again.returncode == 0 and summary(out).topics['/clock'].message_count == 101
+
+
+# ---------------------------------------------------------------------------------- the node's hook
+def test_node_hook_keeps_log_times_monotonic_across_resets(tmp_path):
+    """write(topic, msg, t_ns) as the node calls it: rclpy messages, a command trailing a switch
+    written by the other thread, and a ~/reset that sends simulation time back to 0."""
+    path = tmp_path / 'node.mcap'
+    rec = SimulationRecorder(path, namespace='/line1', source='cvt_sim node',
+                             joint_names=['l1_' + j for j in I.JOINTS])
+    topics = rec.topics
+    assert topics['joint_states'] == '/line1/joint_states' and topics['clock'] == '/clock'
+    row = np.zeros(len(COL))
+    js = JointState()
+
+    def sample(t):
+        row[COL['t']] = t
+        row[COL['phi1']] = 100.0 * t
+        I.joint_state_from_row(row, names=['l1_' + j for j in I.JOINTS], msg=js)
+        rec.write(topics['joint_states'], js, I.stamp_ns(t))
+
+    rec.write(topics['clutch_engaged'], I.clutch_msg(False), 0)
+    for k in range(11):
+        sample(k * 0.1)
+    rec.write(topics['clutch_engaged'], I.clutch_msg(True), I.stamp_ns(1.05))
+    rec.write(topics['crank_length_cmd'], I.command_msg(0.04), I.stamp_ns(1.0))  # trails
+    sample(1.1)
+    rec.mark_reset()
+    # a command the executor stamped with the last sample just before the reset: old epoch
+    rec.write(topics['load_torque_cmd'], I.command_msg(2.0), I.stamp_ns(1.1))
+    rec.write(topics['clutch_engaged'], I.clutch_msg(False), 0)
+    for k in range(4):
+        sample(k * 0.1)
+    rec.write(topics['load_torque_cmd'], I.command_msg(3.0), I.stamp_ns(0.3))
+    sample(0.4)
+    rec.close()
+    got = list(read_messages(path))
+    logs = [m.log_time_ns for m in got]
+    assert logs == sorted(logs)
+    assert [m.publish_time_ns for m in got if m.topic == '/line1/joint_states'] == \
+        [I.stamp_ns(k * 0.1) for k in range(12)] + [I.stamp_ns(k * 0.1) for k in range(5)]
+    command = next(m for m in got if m.topic == '/line1/crank_length_cmd')
+    assert command.publish_time_ns == I.stamp_ns(1.0) and command.log_time_ns == I.stamp_ns(1.05)
+    after = [m for m in got if m.log_time_ns >= I.stamp_ns(1.1)]
+    assert [m.topic for m in after[:3]] == ['/line1/joint_states', '/line1/load_torque_cmd',
+                                            '/line1/clutch_engaged']
+    assert after[1].log_time_ns == after[2].log_time_ns == I.stamp_ns(1.1)
+    assert after[2].publish_time_ns == 0
+    # the second epoch continues from the last log time: 1.1 s + its simulation time
+    last = [m for m in got if m.topic == '/line1/joint_states'][-1]
+    assert last.log_time_ns == I.stamp_ns(1.1) + I.stamp_ns(0.4)
+    assert summary(path).topics['/line1/load_torque_cmd'].message_count == 2
+
+
+def test_recorder_reports_io_errors_once_and_the_simulation_goes_on(tmp_path):
+    with pytest.raises(RecordingError, match='No such file'):
+        SimulationRecorder(tmp_path / 'missing' / 'x.mcap')
+    (tmp_path / 'exists.mcap').write_bytes(b'keep')
+    with pytest.raises(RecordingError, match='file exists'):
+        SimulationRecorder(tmp_path / 'exists.mcap')
+    child = '''
+import json, resource, signal, sys
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+resource.setrlimit(resource.RLIMIT_FSIZE, (40_000, 40_000))
+from cvt_ros.scene import load_scene
+from cvt_ros.solver.simulator import Simulator
+from cvt_ros.tools.record import SimulationRecorder
+errors = []
+sim = Simulator(load_scene('paper'))
+rec = SimulationRecorder(sys.argv[1], parameters=sim.values, on_error=errors.append,
+                         chunk_size=4096, flush_interval=None)
+accepted = 0
+for _ in range(1500):
+    for sw in sim.advance(1e-3):
+        rec.record_switch(sw)
+    accepted += rec.record_sample(sim.sample())
+rec.close()
+print(json.dumps({'t': sim.t, 'errors': [str(e) for e in errors], 'failed': rec.failed,
+                  'accepted': accepted}))
+'''
+    proc = subprocess.run([sys.executable, '-c', child, str(tmp_path / 'full.mcap')],
+                          capture_output=True, text=True, timeout=120, env=_env())
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert math.isclose(out['t'], 1.5) and out['failed']
+    assert len(out['errors']) == 1 and 'File too large' in out['errors'][0]
+    assert 100 < out['accepted'] < 1500
+    with pytest.warns(RecordingReadWarning, match='truncated'):
+        readable = list(read_messages(tmp_path / 'full.mcap', strict=False))
+    assert len(readable) > 100
+
+
+# ---------------------------------------------------------------------------------- signals
+LIVE_CHILD = '''
+import signal, sys, time
+from cvt_ros.scene import load_scene
+from cvt_ros.solver.simulator import Simulator
+from cvt_ros.tools.record import SimulationRecorder
+sim = Simulator(load_scene('paper'))
+rec = SimulationRecorder(sys.argv[1], parameters=sim.values, scene='paper', source='live test')
+def finish(signum, frame):
+    rec.close()
+    print('finished', rec.message_count, flush=True)
+    sys.exit(0)
+if sys.argv[2] == 'handler':
+    signal.signal(signal.SIGTERM, finish)
+    signal.signal(signal.SIGINT, finish)
+rec.record_clutch_state(sim.engaged, 0.0)
+rec.record_sample(sim.sample())
+print('ready', flush=True)
+dt, k, wall0 = 1e-3, 0, time.monotonic()
+try:
+    with rec:
+        while True:  # real time, 1 kHz, as the node's loop
+            for sw in sim.advance(dt):
+                rec.record_switch(sw)
+            rec.record_sample(sim.sample())
+            rec.record_clock(sim.t)
+            k += 1
+            if k % 50 == 0:
+                print(f'{round(sim.t * 1e9)} {time.monotonic_ns()}', flush=True)
+            pause = wall0 + k * dt - time.monotonic()
+            if pause > 0:
+                time.sleep(pause)
+except KeyboardInterrupt:
+    print('finished', rec.message_count, flush=True)
+'''
+
+
+def _start_live(path, mode):
+    proc = subprocess.Popen([sys.executable, '-c', LIVE_CHILD, str(path), mode], env=_env(),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    line = proc.stdout.readline()
+    if line.strip() != 'ready':
+        proc.kill()
+        raise AssertionError(f'child did not start: {line!r} {proc.stderr.read()}')
+    return proc
+
+
+@pytest.mark.parametrize('signum, mode', [(signal.SIGTERM, 'handler'),
+                                          (signal.SIGINT, 'with')])
+def test_signal_finishes_a_valid_file(tmp_path, signum, mode):
+    path = tmp_path / 'signalled.mcap'
+    proc = _start_live(path, mode)
+    time.sleep(0.8)
+    proc.send_signal(signum)
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, err
+    written = int(out.split()[-1])
+    info = summary(path)
+    assert info.complete and not info.problems and info.message_count == written
+    with AnyReader([path]) as reader:  # strict second reader
+        assert sum(c.msgcount for c in reader.connections) == written
+    samples = [m for m in read_messages(path, '/joint_states')]  # strict: raises if damaged
+    assert len(samples) > 300
+    stamps = [m.log_time_ns for m in samples]
+    assert stamps == [k * 1_000_000 for k in range(len(stamps))]
+
+
+def test_sigkill_loses_at_most_the_last_second_and_recovers(tmp_path):
+    path = tmp_path / 'killed.mcap'
+    proc = _start_live(path, 'handler')
+    time.sleep(2.3)
+    kill_ns = time.monotonic_ns()
+    proc.kill()
+    out, _ = proc.communicate(timeout=10)
+    assert proc.returncode == -signal.SIGKILL
+    progress = [tuple(map(int, line.split())) for line in out.splitlines()]
+    must = max(t for t, wall in progress if wall <= kill_ns - 1_000_000_000)
+    assert must >= 500_000_000, progress[-3:]
+    fixed = tmp_path / 'killed.recovered.mcap'
+    proc = subprocess.run([*CLI, 'recover', str(path)], capture_output=True, text=True,
+                          timeout=60, env=_env())
+    assert proc.returncode == 0, proc.stderr
+    assert f'→ {fixed}' in proc.stdout and '/joint_states' in proc.stdout
+    info = summary(fixed)
+    assert info.complete and not info.problems
+    assert METADATA_NAME in info.metadata  # the scene parameters were on disk from the start
+    stamps = [m.log_time_ns for m in read_messages(fixed, '/joint_states')]
+    assert stamps == [k * 1_000_000 for k in range(len(stamps))]
+    assert stamps[-1] >= must
+    with AnyReader([fixed]) as reader:
+        assert {c.topic: c.msgcount for c in reader.connections}['/joint_states'] == len(stamps)
+
+
+# ---------------------------------------------------------------------------------- cost
+def test_benchmark_reports_the_cost_per_message():
+    result = benchmark(2000)
+    assert 0 < result['sample_us'] < 200 and 0 < result['clock_us'] < 200
+    assert 0 < result['rclpy_joint_state_us'] < 500 and 150 < result['bytes_per_sample'] < 600
