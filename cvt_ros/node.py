@@ -44,13 +44,13 @@ from rclpy.exceptions import InvalidHandle
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.utilities import remove_ros_args
 from rosgraph_msgs.msg import Clock as ClockMsg
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64
 from std_srvs.srv import SetBool, Trigger
 
+from . import interface
 from . import parameters as params_mod
 from .parameters import NODE_PARAMETERS, PHYSICS_PARAMETERS, ParameterError
 from .physics.linkage import GrashofError, grashof_bound
@@ -65,7 +65,7 @@ DEFAULT_SCENE = 'conveyor'
 # control period costs the same (dopri5's adaptive steps make the cost per period vary).
 REALTIME_SOLVER = 'rk4'
 
-JOINTS = ('crank', 'rocker', 'clutch_output', 'output_shaft')   # J1..J4
+JOINTS = interface.JOINTS   # crank, rocker, clutch_output, output_shaft: J1..J4
 _POSITION = [COL[c] for c in ('phi1', 'phi2', 'phi3', 'phi4')]
 _VELOCITY = [COL[c] for c in ('omega1', 'omega2', 'omega3', 'omega4')]
 # effort: motor torque on the crank, clutch torque on the rocker, shaft torque on the clutch
@@ -89,25 +89,14 @@ GIL_SWITCH_INTERVAL_S = 1e-4
 DBL_MAX = sys.float_info.max
 
 # ---------------------------------------------------------------------------------- QoS
-# joint_states: what robot_state_publisher, `ros2 topic echo` and PlotJuggler expect by default.
-JOINT_STATES_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                              reliability=ReliabilityPolicy.RELIABLE,
-                              durability=DurabilityPolicy.VOLATILE)
-# clutch_engaged: latched, so a late subscriber gets the current state.
-CLUTCH_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                        reliability=ReliabilityPolicy.RELIABLE,
-                        durability=DurabilityPolicy.TRANSIENT_LOCAL)
-# /clock: rclcpp::ClockQoS (best effort, keep last 1), as rosbag2's player publishes it; the
-# TimeSource of rclcpp and rclpy subscribes best effort, depth 1.
-CLOCK_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                       reliability=ReliabilityPolicy.BEST_EFFORT,
-                       durability=DurabilityPolicy.VOLATILE)
-DIAGNOSTICS_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                             reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.VOLATILE)
-COMMAND_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                         reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.VOLATILE)
+# defined once in cvt_ros.interface (the recorder and the replay use the same): joint_states as
+# robot_state_publisher, `ros2 topic echo` and PlotJuggler expect; clutch_engaged latched;
+# /clock as rclcpp::ClockQoS (best effort, keep last 1)
+JOINT_STATES_QOS = interface.joint_states_qos()
+CLUTCH_QOS = interface.clutch_qos()
+CLOCK_QOS = interface.clock_qos()
+DIAGNOSTICS_QOS = interface.diagnostics_qos()
+COMMAND_QOS = interface.command_qos()
 
 # ---------------------------------------------------------------------------------- parameters
 PHYSICS_NAMES = frozenset(s.name for s in PHYSICS_PARAMETERS)
