@@ -18,10 +18,11 @@ import os
 import platform
 import subprocess
 import sys
-import threading
 import time
 
 import numpy as np
+
+from .background_node import BackgroundNode
 
 FLOOD_RATE = 10_000
 
@@ -37,24 +38,16 @@ def _env(domain):
     return env
 
 
-class _Watcher:
+class _Watcher(BackgroundNode):
     """Subscriber side: joint_states arrival times and stamps, diagnostics, /clock."""
 
     def __init__(self, domain):
-        import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
-        from rclpy.context import Context
-        from rclpy.executors import SingleThreadedExecutor
-        from rclpy.node import Node
         from rclpy.qos import QoSProfile, ReliabilityPolicy
         from rosgraph_msgs.msg import Clock
         from sensor_msgs.msg import JointState
 
-        self.rclpy = rclpy
-        self.context = Context()
-        rclpy.init(context=self.context, domain_id=domain)
-        self.node = Node('cvt_bench_watcher', context=self.context)
-        self.lock = threading.Lock()
+        super().__init__('cvt_bench_watcher', domain)
         self.arrivals = []      # (monotonic ns, stamp ns)
         self.diagnostics = []   # (monotonic ns, {key: value})
         self.clock = None
@@ -66,17 +59,7 @@ class _Watcher:
         self.node.create_subscription(
             Clock, '/clock', self._on_clock,
             QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
-
-    def _spin(self):
-        while self.context.ok():
-            try:
-                self.executor.spin_once(timeout_sec=0.05)
-            except Exception:   # noqa: BLE001 — shutting down
-                return
+        self.start()
 
     def _on_joint_states(self, msg):
         now = time.monotonic_ns()
@@ -102,11 +85,6 @@ class _Watcher:
                 raise TimeoutError('no diagnostics from the node')
             time.sleep(0.01)
         return self.diagnostics[-1][1]
-
-    def close(self):
-        self.executor.shutdown(timeout_sec=1.0)
-        self.node.destroy_node()
-        self.rclpy.try_shutdown(context=self.context)
 
 
 def _agg(fn, values):

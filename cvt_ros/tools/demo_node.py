@@ -18,6 +18,8 @@ import time
 
 import numpy as np
 
+from .background_node import BackgroundNode
+
 CRANK_STEP = (3.0, 0.06)      # (simulation time [s], crank length [m])
 BAD_COMMAND = 6.0             # a NaN crank length, to show the refusal
 LOAD_STEP = (8.0, 14.0)       # (simulation time [s], load torque [N·m])
@@ -27,25 +29,18 @@ PHASES = (('before the steps', 1.5, 3.0), ('after the crank step', 6.0, 8.0),
           ('after the load step', 10.0, 12.0))
 
 
-class _Controller:
+class _Controller(BackgroundNode):
     """The demo's controller node: watches the device and sends the scripted commands."""
 
     def __init__(self, domain):
-        import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
-        from rclpy.context import Context
-        from rclpy.executors import SingleThreadedExecutor
-        from rclpy.node import Node
         from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
         from rosgraph_msgs.msg import Clock
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Bool, Float64
 
-        self.rclpy, self.Float64 = rclpy, Float64
-        self.context = Context()
-        rclpy.init(context=self.context, domain_id=domain)
-        self.node = Node('cvt_demo_controller', context=self.context)
-        self.lock = threading.Lock()
+        self.Float64 = Float64
+        super().__init__('cvt_demo_controller', domain)
         self.samples = []        # (t, ω1, ω4, shaft torque)
         self.switch_times = []   # simulation time at which each clutch_engaged message arrived
         self.diagnostics = {}
@@ -61,17 +56,7 @@ class _Controller:
             QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
         self.crank = self.node.create_publisher(Float64, 'crank_length_cmd', 10)
         self.load = self.node.create_publisher(Float64, 'load_torque_cmd', 10)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self._spin, daemon=True)
-        self.thread.start()
-
-    def _spin(self):
-        while self.context.ok():
-            try:
-                self.executor.spin_once(timeout_sec=0.05)
-            except Exception:   # noqa: BLE001 — shutting down
-                return
+        self.start()
 
     def _on_joint_states(self, msg):
         t = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
@@ -98,11 +83,6 @@ class _Controller:
 
     def send(self, publisher, value):
         publisher.publish(self.Float64(data=value))
-
-    def close(self):
-        self.executor.shutdown(timeout_sec=1.0)
-        self.node.destroy_node()
-        self.rclpy.try_shutdown(context=self.context)
 
 
 def _offline(scene, crank_at, load_at, end):
