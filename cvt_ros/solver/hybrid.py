@@ -424,6 +424,25 @@ def _single_rate(method, t, h, err, clipped, t_end, y, y_new, K, mode, P, ACT, c
                     fire = _CROSSING
                     hi = tm
                     ghi = gm
+        else:
+            # the clutch torque has no derivative at hand: look at the step's middle, and at the
+            # vertex of the parabola through the three values, for a dip below zero
+            gm = _guard_at(method, 0.5, t, h, y, y_new, K, mode, P, ACT, ytmp, dytmp, auxtmp)
+            if gm < 0.0:
+                fire = _CROSSING
+                hi = 0.5
+                ghi = gm
+            else:
+                curvature = 2.0 * (g0 - 2.0 * gm + g1)
+                if curvature > 0.0:
+                    tv = (3.0 * g0 - 4.0 * gm + g1) / (2.0 * curvature)
+                    if 0.0 < tv < 1.0:
+                        gv = _guard_at(method, tv, t, h, y, y_new, K, mode, P, ACT, ytmp, dytmp,
+                                       auxtmp)
+                        if gv < 0.0:
+                            fire = _CROSSING
+                            hi = tv
+                            ghi = gv
     if fire == _NO_EVENT and g1 < -gtol:
         fire = _LATE  # the guard left its band on the wrong side: switch now
     if fire == _CROSSING:
