@@ -38,7 +38,8 @@ SLIP_TOLERANCE = 1e-10     # relative to the member speeds
 TORQUE_TOLERANCE = 1e-10   # relative to the scene's torque scale
 TWIST_TOLERANCE = 1e-13    # [rad]
 SLIP_RATE_TOLERANCE = 1e-10  # relative to the member accelerations
-CONTACT_PROBE_TIME = 1e-6  # [s] look-ahead for s'' at a higher-order contact
+CONTACT_PROBE_TIME = 1e-6  # [s] one look-ahead step at a higher-order contact
+PROBE_STEPS = 3
 
 KIND_RELEASE = 0
 KIND_ENGAGE = 1
@@ -86,8 +87,10 @@ def free_slip_rate(t, y, P, ACT, dy, aux):
 def clutch_engages(t, y, P, ACT, dy, aux, ytmp):
     """Complementarity at s = 0: does the free (disengaged) motion drive the slip negative?
 
-    Decided by s'_free; when s'_free vanishes (a higher-order contact, e.g. a = 0 with the shaft
-    untwisted at t = 0) by s''_free, taken as a difference of s'_free along the free motion.
+    Decided by the free slip rate; when it vanishes (a higher-order contact: with a = 0 the
+    untwisted shaft at t = 0, or the backstop's torque touching zero at the top of every
+    oscillation) by its change along a short free motion of PROBE_STEPS Euler steps, so that
+    contacts up to third order show.
     """
     rate = free_slip_rate(t, y, P, ACT, dy, aux)
     tol = SLIP_RATE_TOLERANCE * (1.0 + abs(aux[AUX_ROCKER_ACCEL]) + abs(dy[OMEGA3]))
@@ -96,5 +99,11 @@ def clutch_engages(t, y, P, ACT, dy, aux, ytmp):
     if rate > tol:
         return False
     for i in range(y.shape[0]):
-        ytmp[i] = y[i] + CONTACT_PROBE_TIME * dy[i]
-    return free_slip_rate(t + CONTACT_PROBE_TIME, ytmp, P, ACT, dy, aux) - rate < 0.0
+        ytmp[i] = y[i]
+    tp = t
+    for _ in range(PROBE_STEPS):
+        free_slip_rate(tp, ytmp, P, ACT, dy, aux)
+        for i in range(y.shape[0]):
+            ytmp[i] += CONTACT_PROBE_TIME * dy[i]
+        tp += CONTACT_PROBE_TIME
+    return free_slip_rate(tp, ytmp, P, ACT, dy, aux) - rate < 0.0

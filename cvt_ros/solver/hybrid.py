@@ -424,11 +424,14 @@ def _single_rate(method, t, h, err, clipped, t_end, y, y_new, K, mode, P, ACT, c
                     fire = _CROSSING
                     hi = tm
                     ghi = gm
-        else:
-            # the clutch torque has no derivative at hand: look at the step's middle, and at the
-            # vertex of the parabola through the three values, for a dip below zero
+        elif min(g0, g1) < 0.5 * max(g0, g1):
+            # the clutch torque has no derivative at hand: where it changes by a factor of two
+            # or more across the step (a step that holds a dip to zero does), look at the step's
+            # middle, and at the vertex of the parabola through the three values
+            # (a dip must leave the tolerance band: a touch at zero, as a backstop holding a
+            # load grazes it every oscillation, is not a release)
             gm = _guard_at(method, 0.5, t, h, y, y_new, K, mode, P, ACT, ytmp, dytmp, auxtmp)
-            if gm < 0.0:
+            if gm < -gtol:
                 fire = _CROSSING
                 hi = 0.5
                 ghi = gm
@@ -439,7 +442,7 @@ def _single_rate(method, t, h, err, clipped, t_end, y, y_new, K, mode, P, ACT, c
                     if 0.0 < tv < 1.0:
                         gv = _guard_at(method, tv, t, h, y, y_new, K, mode, P, ACT, ytmp, dytmp,
                                        auxtmp)
-                        if gv < 0.0:
+                        if gv < -gtol:
                             fire = _CROSSING
                             hi = tv
                             ghi = gv
@@ -521,7 +524,9 @@ def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, 
         else:
             k = math.floor((t - t_start) / h_fixed + 1e-9) + 1.0
             h = t_start + k * h_fixed - t
-            if h < 1e-9 * h_fixed:
+            # a remainder below the grid's rounding, or one that would not move t at all (t of
+            # thousands of seconds: its ulp exceeds 1e-9·h), belongs to the next grid step
+            if h < max(1e-9 * h_fixed, 8.0 * 2.2e-16 * abs(t)):
                 h += h_fixed
         if t + h >= t_end:
             h = t_end - t

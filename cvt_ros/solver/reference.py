@@ -69,7 +69,7 @@ def solve_reference(values, t_end, method='DOP853', rtol=1e-12, atol=1e-14, t_ev
         else:
             t_new = float(sol.t[-1])
             y = np.array(sol.y[:, -1])
-        if t_eval is not None and sol.y.shape[1]:
+        if t_eval is not None and len(sol.t):
             keep = sol.t <= t_new
             for tt, yy in zip(sol.t[keep], sol.y[:, keep].T, strict=True):
                 if not rows or tt > rows[-1][0]:

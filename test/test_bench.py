@@ -1,0 +1,143 @@
+"""`cvt-sim bench` end to end on a tiny configuration: the report's structure, its tables, its
+numbers and plots, and that it leaves the other sections of BENCHMARKS.md alone. No timing
+assertions (the numbers are measured, not promised, here)."""
+import math
+import re
+
+import pytest
+
+from cvt_ros.tools import bench
+
+TINY = ['--quick', '--scenes', 'paper', '--duration', '0.2', '--rtols', '1e-5', '1e-7',
+        '--scipy-rtols', '1e-5', '1e-7', '--steps', '5e-4', '2e-4',
+        '--hard-scenes', 'paper', 'grazing',
+        '--hard-duration', '0.2', '--stiffness', '500', '--stability-duration', '0.2',
+        '--long-duration', '2']
+
+FOREIGN = """# Benchmarks
+
+## Work-precision
+
+STALE numbers from an earlier run
+
+## ROS node
+
+Node numbers | kept | as they are
+
+```sh
+# a comment in a code block is not a heading
+```
+
+## Recording
+
+Recorder numbers.
+"""
+
+
+def cells(line):
+    return [c.strip() for c in re.split(r'(?<!\\)\|', line.strip())[1:-1]]
+
+
+def tables(text):
+    """Markdown tables as (header, rows) with the cells split on unescaped pipes."""
+    out, current = [], None
+    for line in text.splitlines():
+        if line.startswith('|'):
+            if current is None:
+                current = (cells(line), [])
+            elif not set(line) <= set('|-'):
+                current[1].append(cells(line))
+        elif current is not None:
+            out.append(current)
+            current = None
+    if current is not None:
+        out.append(current)
+    return out
+
+
+def number(text):
+    m = re.search(r'[-+]?\d+(\.\d*)?([eE][-+]?\d+)?', text)
+    assert m, f'no number in {text!r}'
+    return float(m.group(0))
+
+
+@pytest.fixture(scope='module')
+def report(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp('bench')
+    out = tmp / 'BENCHMARKS.md'
+    out.write_text(FOREIGN)
+    assert bench.main(TINY + ['--out', str(out), '--plots', str(tmp / 'plots')]) == 0
+    return out.read_text(), tmp
+
+
+def test_report_states_command_machine_and_versions(report):
+    text, _ = report
+    assert text.startswith('# Benchmarks\n')
+    assert 'cvt-sim bench --quick --scenes paper' in text
+    machine = next(line for line in text.splitlines() if line.startswith('Machine:'))
+    for what in ('cores', 'Python 3.', 'numpy', 'scipy', 'numba', 'UTC'):
+        assert what in machine
+
+
+def test_report_has_every_section_once_and_keeps_the_others(report):
+    text, _ = report
+    for title in ('## Default settings', '## Work-precision', '### Scene `paper`',
+                  '## Speed-up at equal error', '## Numerical stability on hard cases',
+                  '## Stability limit of fixed-step RK4', '## Long run', '## Known defects',
+                  '## ROS node', '## Recording'):
+        assert text.count(title) == 1, title
+    assert 'STALE' not in text
+    # the node's and the recorder's sections come after ours, verbatim
+    assert text.index('## Known defects') < text.index('## ROS node') < text.index('## Recording')
+    assert FOREIGN[FOREIGN.index('## ROS node'):] in text
+
+
+def test_tables_are_well_formed_and_their_numbers_positive(report):
+    text, _ = report
+    found = tables(text)
+    assert len(found) >= 10
+    for header, rows in found:
+        for row in rows:
+            assert len(row) == len(header), (header, row)
+    checked = 0
+    for header, rows in found:
+        if header[:3] != ['setting', 'wall [s]', 'RTF']:
+            continue
+        for row in rows:
+            wall, rtf, err = (number(row[i]) for i in range(1, 4))
+            assert wall > 0.0 and rtf > 0.0 and err > 0.0
+            assert rtf == pytest.approx(0.2 / wall, rel=0.01)
+            checked += 1
+    assert checked == 2 * len(bench.METHODS)   # every method, both settings
+
+
+def test_default_settings_and_speed_up_are_numbers(report):
+    text, _ = report
+    default = next(t for t in tables(text) if t[0][0] == 'settings')
+    for row in default[1]:
+        assert number(row[1]) > 0.0 and number(row[-1]) > 0.0     # φ4 error, real-time factor
+    speedup = next(t for t in tables(text) if t[0][:2] == ['error level', 'project (RTF)'])
+    assert [r[0] for r in speedup[1]] == ['1e-04', '1e-06', '1e-08']
+    ratios = [c for r in speedup[1] for c in r[2:] if not c.startswith(('n/r', '–'))]
+    assert ratios and all(number(c) > 0.0 for c in ratios)
+
+
+def test_stability_limit_and_long_run_rows(report):
+    text, _ = report
+    limits = next(t for t in tables(text) if t[0][0] == 'formulation')
+    assert [r[0] for r in limits[1]] == ['reduced', 'paper']
+    for row in limits[1]:
+        theory, limit = number(row[3]), number(row[4])
+        assert 0.0 < limit < 10.0 * theory
+    long = next(t for t in tables(text) if t[0][0] == 'run')
+    for row in long[1]:
+        assert number(row[1]) > 0.0 and math.isfinite(number(row[4]))
+
+
+def test_plots_are_pngs_linked_from_the_report(report):
+    text, tmp = report
+    for name in ('work_precision_paper.png', 'stability_limit.png'):
+        path = tmp / 'plots' / name
+        assert path.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+        assert path.stat().st_size > 10_000
+        assert f'](plots/{name})' in text
