@@ -30,7 +30,8 @@ def grashof_bound(rocker_length, coupler_length, pivot_distance):
     At equality the linkage folds flat (a toggle with A2 = 0, u = ∞): the bound itself is refused.
     """
     b, d, h = rocker_length, coupler_length, pivot_distance
-    return min(b, d, h, b + d + h - 2.0 * max(b, d, h))
+    # fsum: the exact sum, so that b = 0.1, d = h = 0.2 give 0.1 and not 0.09999999999999998
+    return min(b, d, h, math.fsum((b, d, h, -2.0 * max(b, d, h))))
 
 
 def check_crank_length(crank_length, rocker_length, coupler_length, pivot_distance):
@@ -45,9 +46,10 @@ def check_crank_length(crank_length, rocker_length, coupler_length, pivot_distan
             f"turning crank (Grashof: need b + d + h − 2·max(b, d, h) > 0)", a, bound)
     if a < 0.0 or a >= bound:
         raise GrashofError(
-            f"crank length {a:g} m is outside [0, {bound:g}) m: with b={rocker_length}, "
-            f"d={coupler_length}, h={pivot_distance} m the crank must stay shorter than the "
-            f"Grashof bound a + max(b, d, h) < sum of the other two", a, bound)
+            f"crank length {a!r} m is outside [0, {bound!r}) m: the crank must be shorter than "
+            f"the Grashof bound min(b, d, h, b + d + h − 2·max(b, d, h)) = {bound!r} m of the "
+            f"geometry b = {rocker_length!r}, d = {coupler_length!r}, h = {pivot_distance!r} m",
+            a, bound)
     return bound
 
 
