@@ -24,6 +24,16 @@ class ParameterError(ValueError):
 
 @dataclass(frozen=True)
 class ParameterSpec:
+    """One parameter: name, default, SI unit, meaning and the values it may take.
+
+    Numbers have finite bounds wherever the physics has none of its own: the model is meant for
+    drives of this class (inertias of grams·cm² to tonnes·m², torques up to 100 kN·m, speeds up to
+    10⁴ rad/s), and a value beyond them (1e300 N·m, a denormal inertia) is an input error, not a
+    machine. ``min_positive``: 0 is a meaningful degenerate case (a massless node) but the
+    smallest positive value accepted is ``min_positive``; ``allow_inf``: +inf is meaningful (a
+    rigid shaft); ``high_name``: the upper bound depends on other parameters (the crank's Grashof
+    bound) and is checked by ``validate``.
+    """
     name: str
     default: object
     unit: str
@@ -33,14 +43,36 @@ class ParameterSpec:
     low_open: bool = False      # True: value must be > low
     choices: tuple = ()         # allowed strings (or ints) when not empty
     allow_inf: bool = False     # +inf is a meaningful value (rigid shaft)
+    min_positive: float = 0.0   # > 0: values in (0, min_positive) are refused (denormals)
+    max_length: int = 4096      # strings: longest accepted
+    high_name: str = ''         # names an upper bound that other parameters set
 
     def range_text(self):
+        """The accepted values as a person reads them: ``[0.001, 10]``, ``0 or [1e-09, 1000]``."""
         if self.choices:
             return f"one of {list(self.choices)}"
         if isinstance(self.default, str):
-            return ''
-        high = 'inf' if math.isinf(self.high) else f"{self.high:g}"
-        return f"{'(' if self.low_open else '['}{self.low:g}, {high}]"
+            return f"text of at most {self.max_length} characters"
+        low = self.min_positive or self.low
+        high = self.high_name or _bound(self.high)
+        text = (f"{'(' if self.low_open else '['}{_bound(low)}, {high}"
+                f"{')' if math.isinf(self.high) else ']'}")
+        if self.min_positive:
+            text = f"0 or {text}"
+        if self.allow_inf:
+            text += " or .inf"
+        return text
+
+    def contains(self, value):
+        """True when the number ``value`` (already a float or int) is in range."""
+        if 0 < value < self.min_positive:
+            return False
+        if self.allow_inf and value == math.inf:
+            return True
+        if not math.isfinite(value):
+            return False
+        return not (value < self.low or (self.low_open and value <= self.low)
+                    or value > self.high)
 
     def check(self, value):
         """Coerce ``value`` to this parameter's type or raise ParameterError with the reason."""
@@ -49,28 +81,49 @@ class ParameterSpec:
                 if isinstance(value, float) and value.is_integer():
                     value = int(value)
             if value not in self.choices:
-                raise ParameterError(self.name, f"{value!r} is not one of {list(self.choices)}")
+                raise ParameterError(self.name, f"{_short(value)} is not one of "
+                                                f"{list(self.choices)}")
             return value
         if isinstance(self.default, str):
             if not isinstance(value, str):
-                raise ParameterError(self.name, f"expected a string, got {value!r}")
+                raise ParameterError(self.name, f"expected text, got {_short(value)}")
+            if len(value) > self.max_length or '\x00' in value:
+                raise ParameterError(self.name, f"text of {len(value)} characters is not "
+                                                f"accepted: {self.range_text()}, no NUL")
             return value
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ParameterError(self.name, f"expected a number [{self.unit}], got {value!r}")
+            raise ParameterError(self.name, f"expected a number [{self.unit}], got "
+                                            f"{_short(value)}")
+        unit = '' if self.unit == '-' else f" {self.unit}"
         if isinstance(self.default, int):
-            if not float(value).is_integer():
+            if isinstance(value, float) and not value.is_integer():
                 raise ParameterError(self.name, f"expected a whole number, got {value!r}")
-            value = int(value)
-            if value < self.low or value > self.high:
-                raise ParameterError(self.name, f"{value} is outside {self.range_text()}")
-            return value
-        value = float(value)
-        if math.isnan(value) or (math.isinf(value) and not (self.allow_inf and value > 0)):
-            raise ParameterError(self.name, f"{value!r} is not a finite number [{self.unit}]")
-        if value < self.low or (self.low_open and value <= self.low) or value > self.high:
-            unit = '' if self.unit == '-' else f" {self.unit}"
-            raise ParameterError(self.name, f"{value:g}{unit} is outside {self.range_text()}")
-        return value
+            if not self.contains(value):
+                raise ParameterError(self.name, f"{_short(value)}{unit} is outside "
+                                                f"{self.range_text()}")
+            return int(value)
+        try:
+            number = float(value)
+        except OverflowError:   # an integer literal beyond the float range
+            raise ParameterError(self.name, f"{_short(value)}{unit} is beyond any float; "
+                                            f"accepted: {self.range_text()}") from None
+        if math.isnan(number) or (math.isinf(number) and not (self.allow_inf and number > 0)):
+            raise ParameterError(self.name, f"{number!r} is not a finite number [{self.unit}]; "
+                                            f"accepted: {self.range_text()}")
+        if not self.contains(number):
+            raise ParameterError(self.name, f"{number:.6g}{unit} is outside "
+                                            f"{self.range_text()}")
+        return number
+
+
+def _bound(x):
+    return 'inf' if x == math.inf else '-inf' if x == -math.inf else f"{x:g}"
+
+
+def _short(value, limit=60):
+    """A value for an error message, cut to ``limit`` characters (a 400-digit literal, a list)."""
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[:limit]}… ({len(text)} characters)"
 
 
 def _spec(name, default, unit, description, **kw):
@@ -78,42 +131,47 @@ def _spec(name, default, unit, description, **kw):
 
 
 PHYSICS_PARAMETERS = (
-    _spec('linkage.crank_length', 0.03, 'm', 'crank O1A length a: sets the ratio (0 = neutral)',
-          low=0.0),
-    _spec('linkage.rocker_length', 0.10, 'm', 'rocker O2B length b', low=0.0, low_open=True),
-    _spec('linkage.coupler_length', 0.20, 'm', 'coupler AB length d', low=0.0, low_open=True),
-    _spec('linkage.pivot_distance', 0.20, 'm', 'frame O1O2 length h', low=0.0, low_open=True),
+    _spec('linkage.crank_length', 0.03, 'm', 'crank O1A length a: sets the ratio (0 = neutral); '
+          'shorter than the Grashof bound min(b, d, h, b + d + h − 2·max(b, d, h))',
+          low=0.0, high_name='Grashof bound'),
+    _spec('linkage.rocker_length', 0.10, 'm', 'rocker O2B length b', low=1e-3, high=10.0),
+    _spec('linkage.coupler_length', 0.20, 'm', 'coupler AB length d', low=1e-3, high=10.0),
+    _spec('linkage.pivot_distance', 0.20, 'm', 'frame O1O2 length h', low=1e-3, high=10.0),
     _spec('linkage.assembly_mode', 1, '-', 'branch σ of the closed-form rocker angle',
           choices=(1, -1)),
     _spec('linkage.crank_rate_limit', 0.01, 'm/s', 'crank-length actuator speed limit',
-          low=0.0, low_open=True),
+          low=1e-6, high=10.0),
     _spec('linkage.crank_accel_limit', 1.0, 'm/s^2',
           'crank-length actuator acceleration limit (keeps the rocker speed continuous)',
-          low=0.0, low_open=True),
-    _spec('inertia.motor', 0.05, 'kg*m^2', 'J1: motor, flywheel and crank', low=0.0,
-          low_open=True),
+          low=1e-6, high=1e4),
+    _spec('inertia.motor', 0.05, 'kg*m^2', 'J1: motor, flywheel and crank', low=1e-6, high=1e4),
     _spec('inertia.rocker', 0.002, 'kg*m^2', 'J2: rocker and driving parts of the clutch',
-          low=0.0),
+          low=0.0, high=1e3, min_positive=1e-9),
     _spec('inertia.clutch_driven', 0.001, 'kg*m^2',
-          'J3: driven parts of the clutch, shaft input end (0 = massless node)', low=0.0),
+          'J3: driven parts of the clutch, shaft input end (0 = massless node)',
+          low=0.0, high=1e3, min_positive=1e-9),
     _spec('inertia.output', 0.5, 'kg*m^2', 'J4: driven shaft and everything after it',
-          low=0.0, low_open=True),
+          low=1e-6, high=1e4),
     _spec('shaft.stiffness', 500.0, 'N*m/rad', 'torsion shaft stiffness c (.inf = rigid shaft)',
-          low=0.0, low_open=True, allow_inf=True),
-    _spec('shaft.damping', 0.0, 'N*m*s/rad', 'torsion shaft damping', low=0.0),
+          low=1.0, high=1e9, allow_inf=True),
+    _spec('shaft.damping', 0.0, 'N*m*s/rad', 'torsion shaft damping', low=0.0, high=1e5),
     _spec('motor.model', 'induction', '-', 'induction (Kloss) | constant_torque | constant_speed',
           choices=('induction', 'constant_torque', 'constant_speed')),
-    _spec('motor.torque', 10.0, 'N*m', 'torque of the constant_torque motor'),
-    _spec('motor.speed', 150.0, 'rad/s', 'speed of the constant_speed (ideal) source'),
+    _spec('motor.torque', 10.0, 'N*m', 'torque of the constant_torque motor',
+          low=-1e5, high=1e5),
+    _spec('motor.speed', 150.0, 'rad/s', 'speed of the constant_speed (ideal) source',
+          low=-1e4, high=1e4),
     _spec('motor.synchronous_speed', 157.08, 'rad/s', 'induction motor synchronous speed ω0',
-          low=0.0, low_open=True),
+          low=1.0, high=1e4),
     _spec('motor.breakdown_torque', 40.0, 'N*m', 'induction motor breakdown torque Mk',
-          low=0.0, low_open=True),
+          low=1e-3, high=1e5),
     _spec('motor.breakdown_slip', 0.2, '-', 'induction motor breakdown slip sk',
-          low=0.0, high=1.0, low_open=True),
-    _spec('load.torque', 5.0, 'N*m', 'constant load torque on the output (positive pulls back)'),
-    _spec('load.viscous', 0.0, 'N*m*s/rad', 'viscous load coefficient', low=0.0),
-    _spec('load.quadratic', 0.0, 'N*m*s^2/rad^2', 'quadratic (mixer) load coefficient', low=0.0),
+          low=1e-4, high=1.0),
+    _spec('load.torque', 5.0, 'N*m', 'constant load torque on the output (positive pulls back)',
+          low=-1e5, high=1e5),
+    _spec('load.viscous', 0.0, 'N*m*s/rad', 'viscous load coefficient', low=0.0, high=1e4),
+    _spec('load.quadratic', 0.0, 'N*m*s^2/rad^2', 'quadratic (mixer) load coefficient',
+          low=0.0, high=1e3),
     _spec('clutch.release', 'torque', '-',
           'release rule: torque (clutch torque falls to 0) | twist (paper: twist falls to 0)',
           choices=('torque', 'twist')),
@@ -125,8 +183,8 @@ PHYSICS_PARAMETERS = (
           'through a calibrated ratio map, for long runs)',
           choices=('full', 'rigid_shaft', 'averaged')),
     _spec('model.baumgarte', 200.0, '1/s', 'constraint stabilization rate of the paper formulation',
-          low=0.0),
-    _spec('initial.crank_speed', 150.0, 'rad/s', 'crank speed ω1 at t = 0'),
+          low=0.0, high=1e6),
+    _spec('initial.crank_speed', 150.0, 'rad/s', 'crank speed ω1 at t = 0', low=-1e4, high=1e4),
     _spec('solver.method', 'dopri5', '-',
           'dopri5 (adaptive, event-located) | rk4 (fixed step, events located inside the step)',
           choices=('dopri5', 'rk4')),
@@ -134,7 +192,7 @@ PHYSICS_PARAMETERS = (
     # switch times within ~1e-7 s; rtol 1e-8 brings the switch times within 1e-9 s (BENCHMARKS.md)
     _spec('solver.rtol', 2e-6, '-', 'relative tolerance of dopri5', low=1e-14, high=1e-2),
     _spec('solver.atol', 2e-8, '-', 'absolute tolerance of dopri5', low=1e-16, high=1.0),
-    _spec('solver.max_step', 0.01, 's', 'largest step of dopri5', low=0.0, low_open=True),
+    _spec('solver.max_step', 0.01, 's', 'largest step of dopri5', low=1e-9, high=10.0),
     _spec('solver.output_subsystem', 'exact', '-',
           'exact: the open clutch\'s linear output (J3, shaft, J4) is solved in closed form; '
           'integrate: on its own adaptive clock (always so for a quadratic load)',
@@ -145,7 +203,7 @@ PHYSICS_PARAMETERS = (
           choices=('auto', 'off')),
     _spec('solver.fixed_step', 2e-4, 's',
           'largest sub-step of rk4 (the step is refined further if the shaft mode needs it)',
-          low=0.0, low_open=True),
+          low=1e-9, high=0.1),
 )
 
 # The node's own parameters (cvt_ros/node.py). They live here, free of rclpy, so that one scene
@@ -176,9 +234,9 @@ NODE_PARAMETERS = (
                   choices=(True, False)),
     _spec('limits.load_torque', 1000.0, 'N*m',
                   'largest |load_torque_cmd| accepted; larger commands are refused',
-                  low=0.0, low_open=True),
+                  low=0.0, high=1e5, low_open=True),
     _spec('joint_prefix', '', '-',
-                  'prefix of the joint names in joint_states (e.g. line1_)'),
+                  'prefix of the joint names in joint_states (e.g. line1_)', max_length=256),
     _spec('record.path', '', '-',
                   'MCAP file to record published and received messages to (empty = off)'),
 )

@@ -98,7 +98,50 @@ def test_validate_refuses_with_value_and_limit():
     with pytest.raises(GrashofError) as err:
         validate({'linkage.crank_length': 0.1})
     assert err.value.value == 0.1 and err.value.limit == pytest.approx(0.1)
-    with pytest.raises(ParameterError, match=r'1.5 is outside \(0, 1\]'):
+    with pytest.raises(ParameterError, match=r'1.5 is outside \[0.0001, 1\]'):
         validate({'motor.breakdown_slip': 1.5})
     with pytest.raises(ParameterError, match='J2 > 0'):
         validate({'model.formulation': 'paper', 'inertia.rocker': 0.0})
+
+
+def test_every_number_has_finite_physical_bounds_that_the_default_respects():
+    for name, spec in SPECS.items():
+        if spec.choices or isinstance(spec.default, str):
+            continue
+        assert math.isfinite(spec.low), name
+        assert math.isfinite(spec.high) or spec.high_name, name
+        assert spec.check(spec.default) == spec.default, name
+        for outside in (spec.low - 1.0, spec.high * 10.0 + 1.0):
+            if math.isfinite(outside) and not spec.contains(outside):
+                with pytest.raises(ParameterError, match=name.replace('.', r'\.')):
+                    spec.check(outside)
+
+
+@pytest.mark.parametrize('name, value, message', [
+    ('load.torque', 10 ** 400, r'beyond any float; accepted: \[-100000, 100000\]'),
+    ('load.torque', 1e300, r'1e\+300 N\*m is outside \[-100000, 100000\]'),
+    ('inertia.output', 5e-324, r'outside \[1e-06, 10000\]'),
+    ('inertia.clutch_driven', 1e-12, r'outside 0 or \[1e-09, 1000\]'),
+    ('inertia.motor', float('nan'), 'not a finite number'),
+    ('shaft.stiffness', -float('inf'), 'not a finite number'),
+    ('steps_per_command', 10 ** 30, r'outside \[0, 1e\+09\]'),
+    ('steps_per_command', 2.5, 'whole number'),
+    ('joint_prefix', 'x' * 300, 'at most 256 characters'),
+    ('load.torque', [1] * 100, r'expected a number .*\(300 characters\)'),
+])
+def test_out_of_range_values_are_refused_with_value_and_limit(name, value, message):
+    with pytest.raises(ParameterError, match=message):
+        validate({name: value})
+
+
+def test_degenerate_values_that_mean_something_stay_accepted():
+    values = validate({'inertia.clutch_driven': 0.0, 'inertia.rocker': 0.0,
+                       'shaft.stiffness': math.inf, 'linkage.crank_length': 0.0})
+    assert values['inertia.clutch_driven'] == 0.0 and math.isinf(values['shaft.stiffness'])
+
+
+def test_grashof_bound_is_exact_for_the_shipped_geometry():
+    with pytest.raises(GrashofError, match=r'\[0, 0\.1\) m: the crank must be shorter than the '
+                                           r'Grashof bound'):
+        validate({'linkage.crank_length': 0.1})
+    assert validate({'linkage.crank_length': 0.09999999999999999})
