@@ -1,12 +1,17 @@
 """Test environment: ROS wheels found through the venv, DDS kept on this host and per run.
 
-Each pytest run gets its own ROS_DOMAIN_ID (from its pid) so parallel runs on one machine do not
-see each other; subprocesses inherit it. Tests that start several node processes may still pick
-a different id of their own.
+Each pytest process holds a ROS domain of its own for its whole life, allocated machine-wide
+(``cvt_ros.device.domains``: a lock per domain id, released when the process ends, however it
+ends), so concurrent runs on one machine (several developers, CI) never see each other; its
+subprocesses inherit ROS_DOMAIN_ID. Tests that start nodes take a further domain each
+(``node_harness.domain_id``). An exported ROS_DOMAIN_ID of an ad-hoc session is not used.
 """
 import os
 import sys
 
+from cvt_ros.device import domains
+
 os.environ.setdefault('AMENT_PREFIX_PATH', sys.prefix)
 os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-os.environ.setdefault('ROS_DOMAIN_ID', str(1 + os.getpid() % 100))
+_SESSION_DOMAIN = domains.acquire()
+os.environ['ROS_DOMAIN_ID'] = str(_SESSION_DOMAIN.domain)

@@ -1,13 +1,13 @@
 """Helpers for the node tests: the node in a subprocess, a probe node in the test process.
 
-Every test module gets its own ROS domain (``domain_id``), discovery is limited to this machine,
-and nothing waits by sleeping: ``wait_for`` polls a condition until a timeout.
+Every test module gets its own ROS domain (``domain_id``: allocated machine-wide, held until this
+process and the nodes started in it have ended), discovery is limited to this machine, and nothing
+waits by sleeping: ``wait_for`` polls a condition until a timeout.
 
 Run as a script, ``python test/node_harness.py flood TOPIC RATE SECONDS VALUE...`` publishes
 std_msgs/Float64 commands at RATE per second from its own process (a flood must not share the
 probe's interpreter lock).
 """
-import itertools
 import os
 import signal
 import subprocess
@@ -25,10 +25,12 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from cvt_ros.device import domains
+
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
 SCENES = os.path.join(REPO, 'config', 'scenes')
-_counter = itertools.count()
+_leases = {}   # domain id -> DomainLease held by this process
 
 RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                       reliability=ReliabilityPolicy.RELIABLE,
@@ -42,8 +44,17 @@ BEST_EFFORT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
 
 
 def domain_id():
-    """A ROS domain for one test module: distinct within this process, spread by pid (1..100)."""
-    return 1 + (os.getpid() * 13 + next(_counter) * 37) % 100
+    """A ROS domain no other process on this machine holds (21..101), held by this process until
+    it ends; nodes started with ``NodeProcess`` hold it too (an orphaned node keeps it taken)."""
+    lease = domains.acquire()
+    _leases[lease.domain] = lease
+    return lease.domain
+
+
+def _lock_fds(domain):
+    """The lock descriptor to hand to a child on ``domain`` (none for a domain not from here)."""
+    lease = _leases.get(domain)
+    return (lease.fd,) if lease is not None and lease.fd is not None else ()
 
 
 def ros_env(domain):
@@ -81,7 +92,8 @@ class NodeProcess:
         cmd = list(command or [sys.executable, '-m', 'cvt_ros.node'])
         cmd += list(args) + ['--ros-args'] + list(ros_args)
         self.proc = subprocess.Popen(cmd, env=ros_env(domain), stdout=self.log,
-                                     stderr=subprocess.STDOUT, cwd=REPO)
+                                     stderr=subprocess.STDOUT, cwd=REPO,
+                                     pass_fds=_lock_fds(domain))
 
     def output(self):
         self.log.flush()
@@ -235,7 +247,8 @@ def flood(domain, topic, rate, seconds, values):
     """Run the flooder in its own process: ``rate`` Float64 messages per second."""
     cmd = [sys.executable, os.path.abspath(__file__), 'flood', topic, str(rate), str(seconds)]
     cmd += [repr(float(v)) for v in values]
-    return subprocess.Popen(cmd, env=ros_env(domain), stdout=subprocess.PIPE, text=True)
+    return subprocess.Popen(cmd, env=ros_env(domain), stdout=subprocess.PIPE, text=True,
+                            pass_fds=_lock_fds(domain))
 
 
 def _flood_main(topic, rate, seconds, *values):
