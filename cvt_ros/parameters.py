@@ -264,9 +264,9 @@ def validate(values):
     for name, value in values.items():
         if name not in SPECS:
             close = difflib.get_close_matches(name, list(SPECS), n=1)
-            hint = f" (did you mean {close[0]}?)" if close else ''
-            raise ParameterError(
-                name, f"unknown parameter{hint}; valid: {', '.join(sorted(SPECS))}")
+            known = (f"did you mean {close[0]}? (`cvt-sim params` lists every name)" if close
+                     else f"valid: {', '.join(sorted(SPECS))}")
+            raise ParameterError(name, f"unknown parameter; {known}")
         out[name] = SPECS[name].check(value)
     try:
         check_crank_length(out['linkage.crank_length'], out['linkage.rocker_length'],

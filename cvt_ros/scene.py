@@ -9,16 +9,15 @@ import os
 import sys
 from pathlib import Path
 
-import yaml
-
 from . import parameters
 from .physics.linkage import GrashofError
+from .yaml_file import InputFileError, is_file, parse_value, read_yaml
 
 NODE_NAME = 'cvt_sim'
 SCENES_DIR = Path(__file__).resolve().parent.parent / 'config' / 'scenes'
 
 
-class SceneError(ValueError):
+class SceneError(InputFileError):
     """A scene file that cannot be used; the message says which file, key and why."""
 
 
@@ -41,14 +40,18 @@ def available_scenes():
 
 def resolve(scene):
     """A path, or a scene name such as ``paper`` (config/scenes/paper.yaml)."""
-    p = Path(scene)
-    if p.is_file():
-        return p
-    for d in scene_dirs():
-        candidate = d / f"{scene}.yaml"
-        if candidate.is_file():
-            return candidate
-    raise SceneError(f"scene {scene!r} not found: not a file, and not one of "
+    if is_file(scene):
+        return Path(scene)
+    name = os.fspath(scene)
+    if '\x00' not in name and len(name) < 4096 and os.path.exists(name):
+        raise SceneError(f"{name}: not a regular file (a scene is a .yaml file)")
+    if '/' not in name and os.sep not in name:
+        for d in scene_dirs():
+            candidate = d / f"{name}.yaml"
+            if is_file(candidate):
+                return candidate
+    shown = name if len(name) <= 120 else f"{name[:120]}… ({len(name)} characters)"
+    raise SceneError(f"scene {shown!r} not found: not a file, and not one of "
                      f"{', '.join(available_scenes()) or '(no scenes installed)'}")
 
 
@@ -78,10 +81,7 @@ def _yaml_number(value):
 def read_scene(path):
     """The raw parameter map of a scene file (dotted names), without validation."""
     path = resolve(path)
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except yaml.YAMLError as exc:
-        raise SceneError(f"{path}: not valid YAML: {exc}") from None
+    doc = read_yaml(path, SceneError)
     if not isinstance(doc, dict) or not doc:
         raise SceneError(f"{path}: expected a map with top key '{NODE_NAME}:' (or '/**:')")
     keys = [k for k in doc if k in (NODE_NAME, f'/{NODE_NAME}', '/**') or
@@ -97,18 +97,36 @@ def read_scene(path):
         params = body['ros__parameters'] or {}
         if not isinstance(params, dict):
             raise SceneError(f"{path}: 'ros__parameters' must be a map of parameters")
-        flat.update({name: _yaml_number(v) for name, v in _flatten(params).items()})
+        flat.update({str(name): _yaml_number(v) for name, v in _flatten(params).items()})
     return flat
 
 
-def load_scene(path, overrides=None):
-    """Validated parameter values of a scene, with ``overrides`` (dotted name → value) applied."""
+def load_scene(path, overrides=None, origins=None):
+    """Validated parameter values of a scene, with ``overrides`` (dotted name → value) applied.
+
+    An error names where the bad value came from: the scene file, or the override as the user
+    gave it (``origins``: name → e.g. ``'--set load.torque=1e300'``; default ``'override NAME'``).
+    """
     raw = read_scene(path) if path is not None else {}
-    raw.update(overrides or {})
+    where = f"{resolve(path)}: " if path is not None else ''
+    overrides = dict(overrides or {})
+    if overrides:
+        _validated(raw, where)   # the file on its own first: its own errors name the file
+    origins = origins or {}
+    try:
+        return parameters.validate(dict(raw, **overrides))
+    except (parameters.ParameterError, GrashofError) as exc:
+        blamed = [n for n in overrides if n == getattr(exc, 'name', None)] or \
+            [n for n in overrides if isinstance(exc, GrashofError) and n.startswith('linkage.')]
+        if blamed:
+            where = ', '.join(origins.get(n, f"override {n}") for n in blamed) + ': '
+        raise SceneError(f"{where}{exc}") from None
+
+
+def _validated(raw, where):
     try:
         return parameters.validate(raw)
     except (parameters.ParameterError, GrashofError) as exc:
-        where = f"{resolve(path)}: " if path is not None else ''
         raise SceneError(f"{where}{exc}") from None
 
 
@@ -117,9 +135,4 @@ def parse_override(text):
     if '=' not in text:
         raise SceneError(f"--set expects key=value, got {text!r}")
     key, _, raw = text.partition('=')
-    key = key.strip()
-    try:
-        value = yaml.safe_load(raw) if raw.strip() else ''
-    except yaml.YAMLError:
-        value = raw
-    return key, _yaml_number(value)
+    return key.strip(), _yaml_number(parse_value(raw))

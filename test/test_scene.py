@@ -62,7 +62,10 @@ def test_unknown_key_names_the_closest_and_the_valid_ones(tmp_path):
         load_scene(p)
     msg = str(err.value)
     assert 'linkage.crank_lenght' in msg and 'did you mean linkage.crank_length' in msg
-    assert 'inertia.output' in msg and str(p) in msg
+    assert 'cvt-sim params' in msg and str(p) in msg
+    far = write(tmp_path, "cvt_sim:\n  ros__parameters:\n    zzz: 1\n", 'far.yaml')
+    with pytest.raises(SceneError, match='valid: clutch.release, .*inertia.output'):
+        load_scene(far)
 
 
 @pytest.mark.parametrize('body, fragment', [
@@ -145,3 +148,42 @@ def test_grashof_bound_is_exact_for_the_shipped_geometry():
                                            r'Grashof bound'):
         validate({'linkage.crank_length': 0.1})
     assert validate({'linkage.crank_length': 0.09999999999999999})
+
+
+@pytest.mark.parametrize('content, fragment', [
+    (b'cvt_sim:\n  ros__parameters:\n    load.torque: \xff\xfe\n', r'not UTF-8 text \(byte 45'),
+    (b'cvt_sim: ' + b'[' * 3000 + b']' * 3000 + b'\n', 'nested deeper than 32 levels'),
+    (b'a: &a [1, 1, 1, 1, 1, 1, 1, 1, 1]\nb: &b [*a, *a, *a, *a, *a, *a, *a, *a, *a]\n'
+     b'c: &c [*b, *b, *b, *b, *b, *b, *b, *b, *b]\ncvt_sim: [*c, *c, *c, *c, *c, *c, *c]\n',
+     r'alias \*a is not allowed'),
+    (bytes(range(256)) * 4, 'not UTF-8 text'),
+    (b'\x00' * 10, 'not valid YAML'),
+    (b'x' * (2 << 20), 'larger than an input file may be'),
+])
+def test_hostile_scene_files_are_one_clear_error(tmp_path, content, fragment):
+    p = tmp_path / 'hostile.yaml'
+    p.write_bytes(content)
+    with pytest.raises(SceneError, match=fragment) as err:
+        load_scene(p)
+    assert str(p) in str(err.value) and len(str(err.value)) < 600
+
+
+def test_paths_that_are_not_scene_files(tmp_path):
+    with pytest.raises(SceneError, match='not found') as err:
+        load_scene('x' * 300)
+    assert len(str(err.value)) < 600
+    with pytest.raises(SceneError, match='not a regular file'):
+        load_scene(tmp_path)
+    with pytest.raises(SceneError, match='not found'):
+        load_scene('bad\x00name')
+
+
+def test_an_override_error_names_the_override_not_the_file():
+    with pytest.raises(SceneError) as err:
+        load_scene('paper', {'linkage.crank_length': 0.2},
+                   {'linkage.crank_length': '--set linkage.crank_length=0.2'})
+    assert str(err.value).startswith('--set linkage.crank_length=0.2: ') and 'paper' not in \
+        str(err.value)
+    with pytest.raises(SceneError, match=r'^override lod\.torque: lod\.torque: unknown'):
+        load_scene('paper', {'lod.torque': 1.0})
+    assert parse_override('load.torque=[&a 1, *a]')[1] == '[&a 1, *a]'   # alias: stays text

@@ -14,7 +14,13 @@ _CSV_FORMATS = ['%d' if name == 'engaged' else '%.12g' for name in CSV_COLUMNS]
 
 
 def overrides_from(set_args):
-    return dict(parse_override(text) for text in set_args or ())
+    """``--set KEY=VALUE`` arguments → (overrides, origins: key → the argument as given)."""
+    overrides, origins = {}, {}
+    for text in set_args or ():
+        key, value = parse_override(text)
+        overrides[key] = value
+        origins[key] = f"--set {text if len(text) <= 80 else text[:80] + '…'}"
+    return overrides, origins
 
 
 def write_csv(path, samples):
@@ -86,9 +92,9 @@ def progress_bar(duration):
     return bar, update
 
 
-def run_scene(scene, duration, overrides=None, sample_dt=1e-3, progress=True):
+def run_scene(scene, duration, overrides=None, sample_dt=1e-3, progress=True, origins=None):
     """Load, simulate, return (simulator, result)."""
-    values = load_scene(scene, overrides)
+    values = load_scene(scene, overrides, origins)
     sim = make_simulator(values)
     if progress:
         bar, update = progress_bar(duration)
@@ -101,14 +107,14 @@ def run_scene(scene, duration, overrides=None, sample_dt=1e-3, progress=True):
     return sim, result
 
 
-def pick_fidelity(args, overrides):
+def pick_fidelity(args, overrides, origins=None):
     """``--fidelity auto --tolerance X``: probe the fidelities against the full model and keep
     the cheapest within X (relative error of the mean output speed and ratio)."""
     if args.fidelity != 'auto':
         if args.fidelity:
             overrides['model.fidelity'] = args.fidelity
         return
-    values = load_scene(args.scene, overrides)
+    values = load_scene(args.scene, overrides, origins)
     probe = min(args.duration, 4.0)
     fidelity, table = choose_fidelity(values, args.tolerance, probe=probe)
     print(f"fidelity         auto (tolerance {args.tolerance:g}, probed over {probe:g} s):")
@@ -121,14 +127,15 @@ def pick_fidelity(args, overrides):
 
 def command(args):
     """Run a scene; returns the exit code."""
-    overrides = overrides_from(args.set)
-    pick_fidelity(args, overrides)
+    overrides, origins = overrides_from(args.set)
+    load_scene(args.scene, overrides, origins)   # every input error before any work
+    pick_fidelity(args, overrides, origins)
     mcap = getattr(args, 'mcap', None)
     if mcap:  # refuse a target that cannot be written before a long run, not after it
         from .record import check_target
         check_target(mcap, args.overwrite)
     sim, result = run_scene(args.scene, args.duration, overrides, args.sample_dt,
-                            progress=not args.quiet)
+                            progress=not args.quiet, origins=origins)
     if args.csv:
         write_csv(args.csv, result.samples)
     summary = summarize(result, args.duration)
