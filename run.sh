@@ -6,10 +6,14 @@
 #   ./run.sh test     the test suite (what CI runs)
 #   ./run.sh bench    the benchmarks (writes BENCHMARKS.md and plots)
 #   ./run.sh cvt-sim ARGS...   any cvt-sim command inside the environment
+#   ./run.sh ros2 ARGS...      the ROS 2 command line (installed from the vendored ros2cli sources
+#                              when they are found: $CVT_ROS2CLI_VENDOR, or ../shared/vendor/ros2cli)
 set -euo pipefail
 cd "$(dirname "$0")"
 ROOT=$PWD
 VENV=$ROOT/.venv
+ROS2CLI_VENDOR=${CVT_ROS2CLI_VENDOR:-$ROOT/../shared/vendor/ros2cli}
+SETUP_STEPS=3   # bump when setup() changes what it does: existing venvs are set up again
 
 python_bin() {
     for candidate in "${PYTHON:-}" python3.11 python3; do
@@ -23,7 +27,8 @@ python_bin() {
 setup() {
     local py stamp want
     py=$(python_bin)
-    want=$(cat requirements.txt setup.py | sha256sum | cut -c1-16)
+    want=$( (cat requirements.txt setup.py; echo "$SETUP_STEPS"
+             [ -x "$ROS2CLI_VENDOR/install.sh" ] && echo ros2cli) | sha256sum | cut -c1-16)
     stamp=$VENV/.cvt_ros-installed
     if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then return; fi
     if ! "$py" -c 'import ensurepip, venv' >/dev/null 2>&1; then
@@ -37,9 +42,35 @@ setup() {
     "$py" -m venv "$VENV"
     "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check -r requirements.txt
     "$VENV/bin/python" -m pip install --quiet --disable-pip-version-check --no-deps -e .
+    touch "$VENV/COLCON_IGNORE"   # a colcon workspace holding this checkout skips the venv
+    ament_register
+    if [ -x "$ROS2CLI_VENDOR/install.sh" ]; then
+        "$ROS2CLI_VENDOR/install.sh" "$VENV/bin/python" >&2
+    fi
     env_vars
     "$VENV/bin/python" -m cvt_ros warmup >&2
     echo "$want" > "$stamp"
+}
+
+ament_register() {
+    # An editable install skips setup.py's data_files, so `ros2 run cvt_ros cvt_node` and
+    # `ros2 pkg executables cvt_ros` would not find the package: register it in the venv's ament
+    # index by links into this checkout (what colcon's install space holds as copies).
+    local share=$VENV/share/cvt_ros lib=$VENV/lib/cvt_ros exe
+    mkdir -p "$VENV/share/ament_index/resource_index/packages" "$share" "$lib"
+    : > "$VENV/share/ament_index/resource_index/packages/cvt_ros"
+    ln -sfn "$ROOT/package.xml" "$share/package.xml"
+    ln -sfn "$ROOT/config" "$share/config"
+    ln -sfn "$ROOT/launch" "$share/launch"
+    # setup.cfg puts the console scripts into lib/cvt_ros (where `ros2 run` looks); the venv's
+    # bin/ gets links so that `.venv/bin/cvt_node` works too (and the other way round)
+    for exe in cvt-sim cvt_node; do
+        if [ -f "$lib/$exe" ] && [ ! -e "$VENV/bin/$exe" ]; then
+            ln -sfn "$lib/$exe" "$VENV/bin/$exe"
+        elif [ -f "$VENV/bin/$exe" ] && [ ! -e "$lib/$exe" ]; then
+            ln -sfn "$VENV/bin/$exe" "$lib/$exe"
+        fi
+    done
 }
 
 env_vars() {
@@ -58,5 +89,11 @@ case "$cmd" in
     test)    exec "$VENV/bin/python" -m pytest -q test "$@" ;;
     bench)   exec "$VENV/bin/python" -m cvt_ros bench "$@" ;;
     cvt-sim) exec "$VENV/bin/python" -m cvt_ros "$@" ;;
-    *) echo "usage: ./run.sh demo | test | bench | cvt-sim ARGS..." >&2; exit 2 ;;
+    ros2)
+        if [ ! -x "$VENV/bin/ros2" ]; then
+            echo "run.sh: no ros2 command in $VENV: the vendored ros2cli sources were not found" \
+                 "(set CVT_ROS2CLI_VENDOR to their folder and run ./run.sh again)" >&2; exit 2
+        fi
+        exec "$VENV/bin/python" "$VENV/bin/ros2" "$@" ;;
+    *) echo "usage: ./run.sh demo | test | bench | cvt-sim ARGS... | ros2 ARGS..." >&2; exit 2 ;;
 esac
