@@ -1,0 +1,147 @@
+"""The architecture as a contract: imports go only downward, no circles, no ROS in the core.
+
+Layers, lowest first (docs/architecture.md draws them):
+
+    physics < parameters, scene, yaml_file < solver < interface < recording < analysis
+    < device < control, scenario < testing, sweep < bench, cli
+
+A module may import its own layer and the layers below it, never one above; no two modules
+import each other, directly or around a circle (imports inside functions count: a circle that
+runs through a lazy import is still a circle); below ``device`` no module imports rclpy or a ROS
+message package at import time, and physics and solver never do at all. Checked by reading every
+module's source with ``ast``, not by importing it.
+"""
+import ast
+from pathlib import Path
+
+import pytest
+
+PACKAGE = Path(__file__).resolve().parent.parent / 'cvt_ros'
+
+LAYERS = [
+    ('physics',),
+    ('parameters', 'scene', 'yaml_file'),
+    ('solver',),
+    ('interface',),
+    ('recording',),
+    ('analysis',),
+    ('device',),
+    ('control', 'scenario'),
+    ('testing', 'sweep'),
+    ('bench', 'cli', '__main__'),
+]
+RANK = {room: rank for rank, rooms in enumerate(LAYERS) for room in rooms}
+DEVICE = RANK['device']
+ROS_MODULES = ('rclpy', 'rcl_interfaces', 'std_msgs', 'sensor_msgs', 'std_srvs', 'rosgraph_msgs',
+               'diagnostic_msgs', 'builtin_interfaces', 'visualization_msgs', 'geometry_msgs',
+               'launch', 'launch_ros')
+ROS_FREE_ENTIRELY = ('physics', 'solver')
+
+
+def modules():
+    """Dotted module name → source path, for every module of the package."""
+    found = {}
+    for path in sorted(PACKAGE.rglob('*.py')):
+        parts = path.relative_to(PACKAGE.parent).with_suffix('').parts
+        if parts[-1] == '__init__':
+            parts = parts[:-1]
+        found['.'.join(parts)] = path
+    return found
+
+
+def room(module):
+    """The room (first component below cvt_ros) of a dotted module name."""
+    parts = module.split('.')
+    return parts[1] if len(parts) > 1 else '__init__'
+
+
+def imports(module, path):
+    """(imported module, line, at module level?) for every import statement of a module."""
+    tree = ast.parse(path.read_text(), str(path))
+    package = module if path.name == '__init__.py' else module.rpartition('.')[0]
+    top_level = {id(node) for node in tree.body}
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for alias in node.names:
+                yield alias.name, node.lineno, id(node) in top_level
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split('.')
+                base = base[:len(base) - node.level + 1]
+                target = '.'.join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module
+            # `from . import interface` imports a module: name it
+            names = [f"{target}.{a.name}" for a in node.names] if not node.module else [target]
+            for name in names:
+                yield name, node.lineno, id(node) in top_level
+
+
+def own(name, known):
+    """The package module an imported name refers to (longest known prefix), or None."""
+    parts = name.split('.')
+    while parts:
+        candidate = '.'.join(parts)
+        if candidate in known:
+            return candidate
+        parts.pop()
+    return None
+
+
+MODULES = modules()
+EDGES = {m: [(own(n, MODULES), line, top) for n, line, top in imports(m, p)]
+         for m, p in MODULES.items()}
+
+
+def test_every_room_has_a_layer():
+    rooms = {room(m) for m in MODULES} - {'__init__'}
+    assert rooms <= set(RANK) | {'tools', 'node'}, sorted(rooms - set(RANK))
+
+
+@pytest.mark.parametrize('module', sorted(MODULES))
+def test_imports_go_only_downward(module):
+    if room(module) not in RANK:
+        pytest.xfail(f'{module}: in a room that issue 9 dissolves (tools/ → cli/, node → device/)')
+    upward = [f"line {line}: {target} ({room(target)} is above {room(module)})"
+              for target, line, _ in EDGES[module]
+              if target and room(target) in RANK and RANK[room(target)] > RANK[room(module)]]
+    assert not upward, f"{module} imports upward: {upward}"
+
+
+@pytest.mark.parametrize('module', sorted(MODULES))
+def test_no_ros_below_the_device(module):
+    r = room(module)
+    if r not in RANK or RANK[r] >= DEVICE:
+        return
+    path = MODULES[module]
+    ros = [(name, line, top) for name, line, top in imports(module, path)
+           if name.split('.')[0] in ROS_MODULES]
+    if r in ROS_FREE_ENTIRELY:
+        assert not ros, f"{module} imports ROS: {ros}"
+    else:
+        assert not [x for x in ros if x[2]], f"{module} imports ROS at import time: {ros}"
+
+
+def test_no_circles():
+    graph = {m: {t for t, _, _ in EDGES[m] if t and t != m} for m in MODULES}
+    # a package __init__ re-exporting its own modules is not a circle with them
+    for m in MODULES:
+        graph[m] = {t for t in graph[m] if not (t.startswith(m + '.') and MODULES[m].name ==
+                                                '__init__.py')}
+    circles, state, stack = [], {}, []
+
+    def visit(node):
+        state[node] = 'open'
+        stack.append(node)
+        for nxt in sorted(graph[node]):
+            if state.get(nxt) == 'open':
+                circles.append(stack[stack.index(nxt):] + [nxt])
+            elif nxt not in state:
+                visit(nxt)
+        stack.pop()
+        state[node] = 'done'
+
+    for m in sorted(graph):
+        if m not in state:
+            visit(m)
+    assert not circles, '\n'.join(' → '.join(c) for c in circles)
