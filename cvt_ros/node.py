@@ -982,11 +982,11 @@ class CvtSimNode(Node):
 
     def _open_recorder(self, path):
         """Record everything published and received to ``path`` (parameter record.path) at
-        simulation time, through cvt_ros.tools.record.SimulationRecorder. A path that cannot be
+        simulation time, through cvt_ros.recording.SimulationRecorder. A path that cannot be
         written is logged and the node runs on without recording; a later I/O error (disk full)
         is logged once and recording stops, the simulation does not."""
         from .recording import RecordingError
-        from .tools.record import SimulationRecorder
+        from .recording.recorder import SimulationRecorder
         logger = self.get_logger()
         try:
             self._recorder = SimulationRecorder(

@@ -1,7 +1,9 @@
 """rosbag2-compatible (ROS 2 Jazzy) MCAP recording: write, read tolerantly, recover after crashes.
 
 Importing this package does not import rclpy; rclpy is loaded only when a message object is
-serialized or deserialized.
+serialized or deserialized, or a recording is replayed (:func:`.replay.replay`). The
+simulation's recorder (:class:`SimulationRecorder`, :mod:`.recorder`) is loaded on first use (it
+imports the interface and the solver's sample layout).
 
 Typical use (in a node)::
 
@@ -25,6 +27,7 @@ from .errors import (
     RecordingError,
     RecordingReadError,
     RecordingReadWarning,
+    ReplayError,
 )
 from .qos import DURATION_INFINITE, offered_qos_profiles_yaml, qos_profile_dict
 from .reader import BagMessage, BagSummary, TopicSummary, read_messages, recover, summary
@@ -42,15 +45,30 @@ __all__ = [
     'RecordingError',
     'RecordingReadError',
     'RecordingReadWarning',
+    'ReplayError',
+    'SimulationRecorder',
     'TopicSummary',
+    'check_target',
     'get_message_definition',
     'message_definition_text',
     'normalize_type_name',
     'offered_qos_profiles_yaml',
     'qos_profile_dict',
     'read_messages',
+    'record_run',
     'recover',
     'summary',
     'type_description_hash',
     'type_name_of',
+    'write_run',
 ]
+
+_RECORDER = frozenset({'SimulationRecorder', 'check_target', 'record_run', 'write_run'})
+
+
+def __getattr__(name: str):
+    if name not in _RECORDER:
+        raise AttributeError(f'module {__name__!r} has no attribute {name!r}')
+    from . import recorder
+
+    return getattr(recorder, name)

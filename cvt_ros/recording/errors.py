@@ -49,3 +49,7 @@ class RecordingReadError(RecordingError):
 
 class RecordingReadWarning(UserWarning):
     """Issued instead of :class:`RecordingReadError` when reading with ``strict=False``."""
+
+
+class ReplayError(RecordingError):
+    """A recording cannot be replayed (not readable, unknown topics, no installed types)."""

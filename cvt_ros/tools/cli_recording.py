@@ -1,15 +1,13 @@
-"""``cvt-sim`` commands for recordings: replay, analyze, export, recover (added to cli.py's parser).
+"""``cvt-sim`` parsers for recordings: replay, analyze, export, recover (added to cli.py's parser).
 
-Each command checks its inputs, calls the library and returns an exit code: 0 done, 1 the input
-was damaged (partial results were produced), 2 nothing could be done. Errors are one line on
-stderr, never a traceback.
+The commands are in recording_commands.py: each checks its inputs, calls the library and returns
+an exit code: 0 done, 1 the input was damaged (partial results were produced), 2 nothing could
+be done. Errors are one line on stderr, never a traceback.
 """
 
 from __future__ import annotations
 
 import argparse
-import os
-import sys
 from typing import Any
 
 
@@ -102,44 +100,22 @@ def add_parsers(sub: Any) -> None:
 
 
 def _replay(args: Any) -> int:
-    from .replay import command
-    return command(args)
+    from .recording_commands import replay_command
+    return replay_command(args)
 
 
 def _analyze(args: Any) -> int:
     import matplotlib
     matplotlib.use('Agg')
-    from .analyze import command
-    return command(args)
+    from .recording_commands import analyze_command
+    return analyze_command(args)
 
 
 def _export(args: Any) -> int:
-    from .export import command
-    return command(args)
+    from .recording_commands import export_command
+    return export_command(args)
 
 
 def _recover(args: Any) -> int:
-    from ..recording import RecordingError, recover, summary
-
-    out = args.output
-    if not out:
-        root = args.file[:-5] if args.file.endswith('.mcap') else args.file
-        out = root + '.recovered.mcap'
-    if not os.path.exists(args.file):
-        print(f'cvt-sim recover: error: {args.file}: no such file', file=sys.stderr)
-        return 2
-    try:
-        count = recover(args.file, out, overwrite=args.overwrite)
-    except (RecordingError, ValueError) as exc:
-        print(f'cvt-sim recover: error: {exc}', file=sys.stderr)
-        return 2
-    info = summary(out)
-    if count == 0:
-        print(f'cvt-sim recover: error: {args.file}: no readable message (an empty file was '
-              f'written to {out})', file=sys.stderr)
-        return 1
-    span = info.duration_ns * 1e-9
-    print(f'recovered        {count} messages ({span:.3f} s) → {out}')
-    for name, topic in sorted(info.topics.items()):
-        print(f'  {name:32s} {topic.type_name:36s} {topic.message_count}')
-    return 0
+    from .recording_commands import recover_command
+    return recover_command(args)

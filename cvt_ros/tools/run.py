@@ -132,7 +132,7 @@ def command(args):
     pick_fidelity(args, overrides, origins)
     mcap = getattr(args, 'mcap', None)
     if mcap:  # refuse a target that cannot be written before a long run, not after it
-        from .record import check_target
+        from ..recording.recorder import check_target
         check_target(mcap, args.overwrite)
     sim, result = run_scene(args.scene, args.duration, overrides, args.sample_dt,
                             progress=not args.quiet, origins=origins)
@@ -143,7 +143,7 @@ def command(args):
     if args.csv:
         print(f"samples          {len(result.samples)} rows → {args.csv}")
     if mcap:
-        from .record import write_run
+        from ..recording.recorder import write_run
         count, error = write_run(mcap, sim, result, scene=args.scene, overwrite=args.overwrite)
         if error is not None:
             print(f"cvt-sim run: error: {error}", file=sys.stderr)

@@ -1,4 +1,4 @@
-"""`cvt-sim analyze` and `cvt-sim export` (cvt_ros.tools.analyze, .export, .plots).
+"""`cvt-sim analyze` and `cvt-sim export` (cvt_ros.analysis).
 
 The metrics of a recording are checked against values computed here, independently and more
 simply, from the CSV of the same run; damaged inputs must give partial results and one clear
@@ -14,10 +14,10 @@ import sys
 import numpy as np
 import pytest
 
+from cvt_ros.analysis import analyze_trace, crank_length_from_angles, load
+from cvt_ros.recording.recorder import SimulationRecorder
 from cvt_ros.scene import load_scene
 from cvt_ros.solver.simulator import Simulator
-from cvt_ros.tools.analyze import analyze_trace, crank_length_from_angles, load
-from cvt_ros.tools.record import SimulationRecorder
 
 CLI = [sys.executable, '-m', 'cvt_ros']
 TWO_PI = 2 * math.pi

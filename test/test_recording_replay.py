@@ -17,9 +17,9 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64
 
 from cvt_ros.recording import read_messages
+from cvt_ros.recording.recorder import SimulationRecorder
 from cvt_ros.scene import load_scene
 from cvt_ros.solver.simulator import Simulator
-from cvt_ros.tools.record import SimulationRecorder
 
 CLI = [sys.executable, '-m', 'cvt_ros']
 TYPES = {'/joint_states': JointState, '/clutch_engaged': Bool, '/clock': Clock,

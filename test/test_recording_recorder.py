@@ -1,4 +1,4 @@
-"""Recording simulations to MCAP (cvt_ros.tools.record, cvt_ros.interface, `cvt-sim run --mcap`).
+"""Recording simulations to MCAP (cvt_ros.recording.recorder, cvt_ros.interface, `run --mcap`).
 
 Files are opened by two independent readers — ``mcap.reader.make_reader`` and
 ``rosbags.highlevel.AnyReader`` (which builds its types only from the definitions embedded in the
@@ -25,6 +25,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, Float64
 
 from cvt_ros import interface as I
+from cvt_ros.bench.recording import benchmark
 from cvt_ros.recording import (
     RecordingError,
     RecordingReadWarning,
@@ -34,8 +35,8 @@ from cvt_ros.recording import (
     type_description_hash,
 )
 from cvt_ros.recording._cdr import cdr_size
+from cvt_ros.recording.recorder import METADATA_NAME, SimulationRecorder, write_run
 from cvt_ros.solver.output import COL
-from cvt_ros.tools.record import METADATA_NAME, SimulationRecorder, benchmark, write_run
 from cvt_ros.tools.run import run_scene
 
 CLI = [sys.executable, '-m', 'cvt_ros']
@@ -277,7 +278,7 @@ signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
 resource.setrlimit(resource.RLIMIT_FSIZE, (40_000, 40_000))
 from cvt_ros.scene import load_scene
 from cvt_ros.solver.simulator import Simulator
-from cvt_ros.tools.record import SimulationRecorder
+from cvt_ros.recording.recorder import SimulationRecorder
 errors = []
 sim = Simulator(load_scene('paper'))
 rec = SimulationRecorder(sys.argv[1], parameters=sim.values, on_error=errors.append,
@@ -308,7 +309,7 @@ LIVE_CHILD = '''
 import signal, sys, time
 from cvt_ros.scene import load_scene
 from cvt_ros.solver.simulator import Simulator
-from cvt_ros.tools.record import SimulationRecorder
+from cvt_ros.recording.recorder import SimulationRecorder
 sim = Simulator(load_scene('paper'))
 rec = SimulationRecorder(sys.argv[1], parameters=sim.values, scene='paper', source='live test')
 def finish(signum, frame):

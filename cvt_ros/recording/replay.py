@@ -1,4 +1,4 @@
-"""``cvt-sim replay FILE``: publish a recording back onto its ROS 2 topics (no rosbag2 needed).
+"""Publish a recording back onto its ROS 2 topics (``cvt-sim replay FILE``; no rosbag2 needed).
 
 Every recorded topic gets a publisher of its recorded type with the **recorded QoS** (parsed from
 the channel's ``offered_qos_profiles``, adapted as ``ros2 bag play`` does: reliable only if every
@@ -14,15 +14,15 @@ the message), unless ``--no-clock``. ``--loop`` starts over at the end (simulati
 back, as with ``ros2 bag play --loop``). ``--delay`` waits before the first message so that
 subscribers can connect (DDS discovery); ``--wait-for-subscribers`` first waits until at least
 one subscriber, and every subscriber the ROS graph knows of on the replayed topics, is
-matched. Ctrl-C or SIGTERM stop cleanly (exit code 0). A damaged file is replayed as far as it
-can be read; the problem is then reported (exit code 1).
+matched. Setting ``stop`` (the command sets it on Ctrl-C/SIGTERM) ends the replay cleanly. A
+damaged file is replayed as far as it can be read; the problems are returned with the counts.
+
+rclpy is imported only inside the functions: this module imports without ROS.
 """
 
 from __future__ import annotations
 
 import importlib
-import signal
-import sys
 import threading
 import time
 import warnings
@@ -30,8 +30,9 @@ from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 from .. import interface as I
+from .errors import ReplayError
 
-__all__ = ['command', 'qos_from_offered', 'replay']
+__all__ = ['ReplayError', 'qos_from_offered', 'replay']
 
 CLOCK_TOPIC = '/clock'
 MIN_VOLATILE_DEPTH = 1000
@@ -40,10 +41,6 @@ _RELIABILITY = {'reliable': 'reliable', 'best_effort': 'best_effort', '1': 'reli
                 '2': 'best_effort'}
 _DURABILITY = {'transient_local': 'transient_local', 'volatile': 'volatile',
                '1': 'transient_local', '2': 'volatile'}
-
-
-class ReplayError(Exception):
-    """The recording cannot be replayed (not readable, unknown topics, no types)."""
 
 
 def qos_from_offered(text: str, default: Mapping[str, Any] | None = None):
@@ -117,7 +114,8 @@ def replay(path: str, *, rate: float = 1.0, topics: Iterable[str] | None = None,
     from rclpy.duration import Duration
     from rosgraph_msgs.msg import Clock
 
-    from ..recording import RecordingReadError, read_messages, summary
+    from .errors import RecordingReadError
+    from .reader import read_messages, summary
 
     if not rate > 0:
         raise ReplayError(f'--rate must be positive, got {rate!r}')
@@ -216,40 +214,3 @@ def replay(path: str, *, rate: float = 1.0, topics: Iterable[str] | None = None,
                 'interrupted': stop.is_set()}
     finally:
         node.destroy_node()
-
-
-def command(args: Any) -> int:
-    """``cvt-sim replay``: 0 = done or stopped by Ctrl-C/SIGTERM, 1 = damaged file (replayed as
-    far as readable), 2 = cannot replay."""
-    import rclpy
-    from rclpy.signals import SignalHandlerOptions
-
-    stop = threading.Event()
-    previous = {}
-
-    def handler(signum: int, frame: Any) -> None:
-        stop.set()
-
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        previous[sig] = signal.signal(sig, handler)
-    context = rclpy.Context()
-    try:
-        rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
-        result = replay(args.file, rate=args.rate, topics=args.topics, loop=args.loop,
-                        clock=not args.no_clock, delay=args.delay,
-                        wait_for_subscribers=args.wait_for_subscribers, stop=stop,
-                        log=lambda text: print(text, flush=True), context=context)
-    except ReplayError as exc:
-        print(f'cvt-sim replay: error: {exc}', file=sys.stderr)
-        return 2
-    finally:
-        rclpy.try_shutdown(context=context)
-        for sig, old in previous.items():
-            signal.signal(sig, old)
-    counts = ', '.join(f'{t} {n}' for t, n in result['per_topic'].items())
-    print(f"{'interrupted' if result['interrupted'] else 'done'}: published "
-          f"{result['published']} messages ({counts})", flush=True)
-    if result['problems']:
-        print(f"cvt-sim replay: error: {result['problems'][0]}", file=sys.stderr)
-        return 1
-    return 0

@@ -18,7 +18,9 @@ import os
 
 import numpy as np
 
-from .analyze import TWO_PI, RunAnalysis, Trace
+from .analyze import RunAnalysis
+from .cycles import TWO_PI
+from .trace import Trace
 
 __all__ = ['plot_all']
 

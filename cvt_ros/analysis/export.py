@@ -1,4 +1,4 @@
-"""``cvt-sim export FILE --csv OUT``: a recording as CSV for spreadsheets and other tools.
+"""A recording as CSV for spreadsheets and other tools (``cvt-sim export FILE --csv OUT``).
 
 The sample CSV has the columns of ``cvt-sim run --csv`` (``t, phi1..phi4, omega1..omega4,
 engaged, twist, clutch_torque, crank_length, load_torque``) followed by ``motor_torque`` and
@@ -15,15 +15,14 @@ from __future__ import annotations
 
 import csv
 import math
-import sys
 from typing import Any
 
 import numpy as np
 
 from ..solver.output import CSV_COLUMNS
-from .analyze import AnalysisError, Trace, load
+from .trace import Trace
 
-__all__ = ['EXPORT_COLUMNS', 'command', 'export_csv', 'export_events']
+__all__ = ['EXPORT_COLUMNS', 'export_csv', 'export_events']
 
 EXPORT_COLUMNS = (*CSV_COLUMNS, 'motor_torque', 'shaft_torque')
 
@@ -75,28 +74,3 @@ def export_events(traces: list[Trace], out: Any) -> int:
                              f'{value:.12g}' if topic != 'clutch_engaged' else int(value)])
             rows += 1
     return rows
-
-
-def command(args: Any) -> int:
-    """0 = exported, 1 = damaged input (the readable part exported), 2 = nothing exported."""
-    try:
-        traces, info = load(args.file, scene=args.scene, namespace=args.namespace)
-    except AnalysisError as exc:
-        print(f'cvt-sim export: error: {exc}', file=sys.stderr)
-        return 2
-    try:
-        with open(args.csv, 'w', encoding='utf-8', newline='') as f:
-            rows = export_csv(traces, f)
-        print(f'samples          {rows} rows → {args.csv}')
-        if args.events:
-            with open(args.events, 'w', encoding='utf-8', newline='') as f:
-                n = export_events(traces, f)
-            print(f'events           {n} rows → {args.events}')
-    except OSError as exc:
-        print(f'cvt-sim export: error: cannot write: {exc}', file=sys.stderr)
-        return 2
-    if info.problems:
-        print(f'cvt-sim export: error: {args.file}: {info.problems[0]}; the readable part was '
-              'exported', file=sys.stderr)
-        return 1
-    return 0

@@ -1,0 +1,132 @@
+"""Inputs of the analysis: an MCAP recording (:mod:`cvt_ros.analysis.bag`) or a CSV of
+``cvt-sim run --csv`` / ``cvt-sim export``, read into :class:`~cvt_ros.analysis.trace.Trace` runs.
+
+The library raises :class:`~cvt_ros.analysis.errors.AnalysisError` when nothing is usable and
+lists read problems of a damaged file in :attr:`RecordingInfo.problems` (partial results).
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+
+import numpy as np
+
+from .. import interface as I
+from .bag import load_mcap
+from .errors import AnalysisError
+from .trace import RecordingInfo, Trace, fill_derived_signals
+
+__all__ = ['load', 'load_csv', 'load_mcap']
+
+
+def load(path: str, *, scene: str | None = None, namespace: str | None = None
+         ) -> tuple[list[Trace], RecordingInfo]:
+    """Read an MCAP recording or a cvt-sim CSV into runs. ``scene`` (name or path) supplies the
+    parameters when the file has none (or overrides them). Raises :class:`AnalysisError` when
+    nothing can be read; read problems of a damaged file are in ``RecordingInfo.problems``."""
+    if not os.path.exists(path):
+        raise AnalysisError(f'{path}: no such file')
+    if os.path.isdir(path):
+        raise AnalysisError(f'{path}: is a directory, not a recording')
+    with open(path, 'rb') as f:
+        head = f.read(8)
+    if head == b'\x89MCAP0\r\n':
+        traces, info = load_mcap(path, namespace=namespace)
+    elif head[:1] in (b'\x89', b'\x00') or not head:
+        raise AnalysisError(f'{path}: not an MCAP recording or a CSV file'
+                            if head else f'{path}: empty file')
+    else:
+        traces, info = load_csv(path)
+    if scene:
+        from ..scene import load_scene
+
+        values = load_scene(scene)
+        for trace in traces:
+            trace.parameters = values
+            trace.parameters_origin = f'--scene {scene}'
+            trace.scene = trace.scene or scene
+    for trace in traces:
+        fill_derived_signals(trace)
+        if (trace.parameters or {}).get('model.fidelity') == 'averaged':
+            trace.notes.append('model.fidelity averaged: ripple, twist, clutch torque and '
+                               'switches are not modelled (mean motion only)')
+    return traces, info
+
+
+
+
+# .................................................................................. CSV
+_CSV_REQUIRED = ('t', 'phi1', 'phi2', 'phi3', 'phi4', 'omega1', 'omega2', 'omega3', 'omega4')
+
+
+def load_csv(path: str) -> tuple[list[Trace], RecordingInfo]:
+    """Read a CSV of ``cvt-sim run --csv`` or ``cvt-sim export`` (tolerates a cut-off end)."""
+    info = RecordingInfo(path, 'csv')
+    try:
+        with open(path, newline='', encoding='utf-8') as f:
+            text = f.read()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise AnalysisError(f'{path}: cannot read: {exc}') from None
+    lines = text.splitlines()
+    if not lines:
+        raise AnalysisError(f'{path}: empty file')
+    header = [h.strip() for h in next(csv.reader([lines[0]]))]
+    missing = [c for c in _CSV_REQUIRED if c not in header]
+    if missing:
+        raise AnalysisError(f'{path}: not a cvt-sim CSV (missing columns {", ".join(missing)})')
+    width = len(header)
+    rows = []
+    for number, line in enumerate(lines[1:], start=2):
+        cells = line.split(',')
+        if len(cells) != width:
+            info.problems.append(f'line {number}: {len(cells)} fields instead of {width} '
+                                 '(file cut off?); reading stopped there')
+            break
+        try:
+            rows.append([float(c) if c.strip() else math.nan for c in cells])
+        except ValueError:
+            info.problems.append(f'line {number}: not a number; reading stopped there')
+            break
+    if not text.endswith('\n') and rows and not info.problems:
+        info.problems.append('the last line has no line end (file cut off?)')
+    if len(rows) < 2:
+        raise AnalysisError(f'{path}: fewer than 2 sample rows'
+                            + (f' ({info.problems[0]})' if info.problems else ''))
+    data = np.asarray(rows)
+    col = {name: data[:, i] for i, name in enumerate(header)}
+    n = len(data)
+
+    def get(name: str) -> np.ndarray:
+        return col[name] if name in col else np.full(n, np.nan)
+
+    t = col['t']
+    cuts = np.flatnonzero(np.diff(t) < 0) + 1
+    bounds = [0, *cuts.tolist(), n]
+    traces = []
+    for r in range(len(bounds) - 1):
+        s = slice(bounds[r], bounds[r + 1])
+        if bounds[r + 1] - bounds[r] < 2:
+            continue
+        tt = t[s]
+        engaged = get('engaged')[s]
+        initial = None if np.isnan(engaged[0]) else bool(engaged[0] > 0.5)
+        on = engaged > 0.5
+        change = np.flatnonzero(on[1:] != on[:-1])
+        sw_t = 0.5 * (tt[change] + tt[change + 1])
+        sw_on = on[change + 1]
+        phi = np.column_stack([get(c)[s] for c in I.POSITION_COLUMNS])
+        twist = get('twist')[s]
+        if np.all(np.isnan(twist)):
+            twist = phi[:, 2] - phi[:, 3]
+        trace = Trace(path, 'csv', tt, phi,
+                      np.column_stack([get(c)[s] for c in I.VELOCITY_COLUMNS]),
+                      np.column_stack([get(c)[s] for c in I.EFFORT_COLUMNS]),
+                      twist, get('crank_length')[s].copy(), sw_t, sw_on, initial, False,
+                      run_index=len(traces))
+        if initial is None:
+            trace.notes.append('no engaged column: clutch metrics unavailable')
+        traces.append(trace)
+    return traces, info
+

@@ -1,0 +1,185 @@
+"""The commands of ``cvt-sim replay / analyze / export / recover`` (parsed in cli_recording.py).
+
+Each command checks its inputs, calls the library (:mod:`cvt_ros.recording`,
+:mod:`cvt_ros.analysis`), turns its results into output and its typed errors into one line on
+stderr, and returns the exit code: 0 done, 1 the input was damaged (partial results were
+produced), 2 nothing could be done. The library raises and never prints.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import threading
+from typing import Any
+
+__all__ = ['analyze_command', 'export_command', 'recover_command', 'replay_command']
+
+
+def _error(command: str, text: str) -> None:
+    print(f'cvt-sim {command}: error: {text}', file=sys.stderr)
+
+
+# ---------------------------------------------------------------------------------- replay
+def replay_command(args: Any) -> int:
+    """0 = done or stopped by Ctrl-C/SIGTERM, 1 = damaged file (replayed as far as readable),
+    2 = cannot replay."""
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+
+    from ..recording.replay import ReplayError, replay
+
+    stop = threading.Event()
+    previous = {}
+
+    def handler(signum: int, frame: Any) -> None:
+        stop.set()
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        previous[sig] = signal.signal(sig, handler)
+    context = rclpy.Context()
+    try:
+        rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+        result = replay(
+            args.file, rate=args.rate, topics=args.topics, loop=args.loop,
+            clock=not args.no_clock, delay=args.delay,
+            wait_for_subscribers=args.wait_for_subscribers, stop=stop,
+            log=lambda text: print(text, flush=True), context=context)
+    except ReplayError as exc:
+        _error('replay', str(exc))
+        return 2
+    finally:
+        rclpy.try_shutdown(context=context)
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+    counts = ', '.join(f'{t} {n}' for t, n in result['per_topic'].items())
+    print(f"{'interrupted' if result['interrupted'] else 'done'}: published "
+          f"{result['published']} messages ({counts})", flush=True)
+    if result['problems']:
+        _error('replay', result['problems'][0])
+        return 1
+    return 0
+
+
+# ---------------------------------------------------------------------------------- analyze
+def _parse_cycles(text: str) -> int | None:
+    return None if text == 'all' else int(text)
+
+
+def analyze_command(args: Any) -> int:
+    """0 = all read, 1 = damaged file (partial results printed), 2 = nothing usable."""
+    from ..analysis import AnalysisError, analyze_trace, load
+    from ..analysis.report import format_run, to_json, write_cycles_csv
+
+    try:
+        traces, info = load(args.file, scene=args.scene, namespace=args.namespace)
+    except AnalysisError as exc:
+        _error('analyze', str(exc))
+        return 2
+    analyses = []
+    for trace in traces:
+        try:
+            analyses.append(analyze_trace(trace))
+        except AnalysisError as exc:
+            _error('analyze', f'run {trace.run_index + 1}: {exc}')
+            return 2
+    head = f'recording        {info.path} ({info.kind}'
+    if info.source:
+        head += f', {info.source}'
+    if info.scene:
+        head += f', scene {info.scene}'
+    print(head + ')')
+    if info.topics:
+        print('topics           ' + ', '.join(f'{name} ({count})'
+                                              for name, (_, count) in sorted(info.topics.items())))
+    if len(analyses) > 1:
+        print(f'runs             {len(analyses)} (simulation time went back: ~/reset)')
+    try:
+        cycles = _parse_cycles(args.cycles)
+    except ValueError:
+        _error('analyze', f'--cycles expects a number or "all", got {args.cycles!r}')
+        return 2
+    for analysis in analyses:
+        print(format_run(analysis, cycles))
+    if args.cycles_csv:
+        n = write_cycles_csv(args.cycles_csv, analyses)
+        print(f'per-cycle table  {n} rows → {args.cycles_csv}')
+    if args.json:
+        import json
+
+        with open(args.json, 'w', encoding='utf-8') as f:
+            json.dump(to_json(analyses, info), f, indent=1)
+        print(f'json             → {args.json}')
+    if args.plots:
+        from ..analysis.plots import plot_all
+
+        try:
+            files = plot_all(analyses, args.plots)
+        except OSError as exc:
+            _error('analyze', f'cannot write plots to {args.plots}: {exc}')
+            return 2
+        print(f'plots            {len(files)} PNG files → {args.plots}')
+    if info.problems:
+        _error('analyze', f'{args.file}: {info.problems[0]}'
+               + (f' (+{len(info.problems) - 1} more)' if len(info.problems) > 1 else '')
+               + '; the results above cover the readable part')
+        return 1
+    return 0
+
+
+# ---------------------------------------------------------------------------------- export
+def export_command(args: Any) -> int:
+    """0 = exported, 1 = damaged input (the readable part exported), 2 = nothing exported."""
+    from ..analysis import AnalysisError, load
+    from ..analysis.export import export_csv, export_events
+
+    try:
+        traces, info = load(args.file, scene=args.scene, namespace=args.namespace)
+    except AnalysisError as exc:
+        _error('export', str(exc))
+        return 2
+    try:
+        with open(args.csv, 'w', encoding='utf-8', newline='') as f:
+            rows = export_csv(traces, f)
+        print(f'samples          {rows} rows → {args.csv}')
+        if args.events:
+            with open(args.events, 'w', encoding='utf-8', newline='') as f:
+                n = export_events(traces, f)
+            print(f'events           {n} rows → {args.events}')
+    except OSError as exc:
+        _error('export', f'cannot write: {exc}')
+        return 2
+    if info.problems:
+        _error('export', f'{args.file}: {info.problems[0]}; the readable part was exported')
+        return 1
+    return 0
+
+
+# ---------------------------------------------------------------------------------- recover
+def recover_command(args: Any) -> int:
+    """0 = recovered, 1 = nothing readable (an empty file was written), 2 = cannot recover."""
+    from ..recording import RecordingError, recover, summary
+
+    out = args.output
+    if not out:
+        root = args.file[:-5] if args.file.endswith('.mcap') else args.file
+        out = root + '.recovered.mcap'
+    if not os.path.exists(args.file):
+        _error('recover', f'{args.file}: no such file')
+        return 2
+    try:
+        count = recover(args.file, out, overwrite=args.overwrite)
+    except (RecordingError, ValueError) as exc:
+        _error('recover', str(exc))
+        return 2
+    info = summary(out)
+    if count == 0:
+        _error('recover', f'{args.file}: no readable message (an empty file was written to '
+                          f'{out})')
+        return 1
+    span = info.duration_ns * 1e-9
+    print(f'recovered        {count} messages ({span:.3f} s) → {out}')
+    for name, topic in sorted(info.topics.items()):
+        print(f'  {name:32s} {topic.type_name:36s} {topic.message_count}')
+    return 0
