@@ -43,11 +43,11 @@ import pytest
 from hypothesis import HealthCheck, given, note, settings
 from hypothesis import strategies as st
 
+from cvt_ros.bench.defects import MASSLESS_DAMPED, RELEASE_DIP, SHORT_CATCH, clutch_signs
 from cvt_ros.physics.linkage import grashof_bound
 from cvt_ros.scene import load_scene
 from cvt_ros.solver.output import COL
 from cvt_ros.solver.simulator import SimulationError, Simulator, fastest_rate
-from cvt_ros.tools.bench import MASSLESS_DAMPED, RELEASE_DIP, SHORT_CATCH, clutch_signs
 
 SPAN = 0.3            # [s] simulated per example
 SAMPLE_DT = 1e-5      # [s]

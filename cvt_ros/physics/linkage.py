@@ -70,6 +70,20 @@ def rocker_angle(phi1, a, b, d, h, sigma):
 
 
 @inline_kernel
+def _partials(a, b, h, c1, s1, c2, s2, c12, s12):
+    """The partial derivatives of f (eq. 1) from the angles' cosines and sines:
+    (f1, f2, fa, f11, f12, f22, f1a, f2a); f1 = 2·A1, f2 = −2·A2 (paper eq. 6), f_aa = 2."""
+    return (2.0 * a * h * s1 + 2.0 * a * b * s12,
+            -2.0 * b * h * s2 - 2.0 * a * b * s12,
+            2.0 * a - 2.0 * h * c1 - 2.0 * b * c12,
+            2.0 * a * h * c1 + 2.0 * a * b * c12,
+            -2.0 * a * b * c12,
+            -2.0 * b * h * c2 + 2.0 * a * b * c12,
+            2.0 * h * s1 + 2.0 * b * s12,
+            -2.0 * b * s12)
+
+
+@inline_kernel
 def constraint_partials(phi1, phi2, a, b, h, d):
     """f of eq. 1 and its first and second partial derivatives at (φ1, φ2, a).
 
@@ -82,14 +96,7 @@ def constraint_partials(phi1, phi2, a, b, h, d):
     s12 = math.sin(phi1 - phi2)
     c12 = math.cos(phi1 - phi2)
     f = a * a + b * b + h * h - d * d - 2.0 * a * h * c1 + 2.0 * b * h * c2 - 2.0 * a * b * c12
-    f1 = 2.0 * a * h * s1 + 2.0 * a * b * s12
-    f2 = -2.0 * b * h * s2 - 2.0 * a * b * s12
-    fa = 2.0 * a - 2.0 * h * c1 - 2.0 * b * c12
-    f11 = 2.0 * a * h * c1 + 2.0 * a * b * c12
-    f12 = -2.0 * a * b * c12
-    f22 = -2.0 * b * h * c2 + 2.0 * a * b * c12
-    f1a = 2.0 * h * s1 + 2.0 * b * s12
-    f2a = -2.0 * b * s12
+    f1, f2, fa, f11, f12, f22, f1a, f2a = _partials(a, b, h, c1, s1, c2, s2, c12, s12)
     return f, f1, f2, fa, f11, f12, f22, f1a, f2a, 2.0
 
 
@@ -117,19 +124,12 @@ def kinematics(phi1, a, b, d, h, sigma):
 
     Returns (cos φ2, sin φ2, u, u', g_a, u_a, g_aa): u = ∂φ2/∂φ1 = A1/A2, u' = ∂²φ2/∂φ1²,
     g_a = ∂φ2/∂a [rad/m], u_a = ∂²φ2/∂φ1∂a [1/m], g_aa = ∂²φ2/∂a² [rad/m²] (implicit
-    differentiation of eq. 1, with the partials of f written out below).
+    differentiation of eq. 1 with the partials of f).
     """
     c2, s2, c1, s1 = rocker_cos_sin(phi1, a, b, d, h, sigma)
     c12 = c1 * c2 + s1 * s2   # cos(φ1 − φ2)
     s12 = s1 * c2 - c1 * s2   # sin(φ1 − φ2)
-    f1 = 2.0 * a * h * s1 + 2.0 * a * b * s12
-    f2 = -2.0 * b * h * s2 - 2.0 * a * b * s12
-    fa = 2.0 * a - 2.0 * h * c1 - 2.0 * b * c12
-    f11 = 2.0 * a * h * c1 + 2.0 * a * b * c12
-    f12 = -2.0 * a * b * c12
-    f22 = -2.0 * b * h * c2 + 2.0 * a * b * c12
-    f1a = 2.0 * h * s1 + 2.0 * b * s12
-    f2a = -2.0 * b * s12
+    f1, f2, fa, f11, f12, f22, f1a, f2a = _partials(a, b, h, c1, s1, c2, s2, c12, s12)
     faa = 2.0
     u = -f1 / f2
     ga = -fa / f2

@@ -31,6 +31,7 @@ from ..physics.linkage import kinematics, rocker_angle
 from . import hybrid as H
 from .output import COL, N_COLUMNS, write_sample
 from .simulator import Simulator
+from .steppers import rk4_combine, rk4_stage
 
 MAP_VERSION = 1
 # what the map depends on; everything else (motor, load law, solver) does not change i_ss
@@ -236,10 +237,7 @@ def averaged_sample(t, y, P, ACT, A, W1, M, R, j1e, aux, ysample):
 def averaged_advance(t, t_end, y, P, ACT, A, W1, M, R, j1e, grid, out, counters):
     """Classical RK4 from t to t_end, stepping onto every sample time and actuator break."""
     n = y.shape[0]
-    k1 = np.empty(n)
-    k2 = np.empty(n)
-    k3 = np.empty(n)
-    k4 = np.empty(n)
+    K = np.empty((4, n))
     ytmp = np.empty(n)
     ysample = np.empty(n)
     aux = np.empty(L.N_AUX)
@@ -249,18 +247,11 @@ def averaged_advance(t, t_end, y, P, ACT, A, W1, M, R, j1e, grid, out, counters)
         if i < grid.shape[0] and grid[i] < t_next:
             t_next = grid[i]
         h = t_next - t
-        averaged_rates(t, y, P, ACT, A, W1, M, R, j1e, k1)
-        for j in range(n):
-            ytmp[j] = y[j] + 0.5 * h * k1[j]
-        averaged_rates(t + 0.5 * h, ytmp, P, ACT, A, W1, M, R, j1e, k2)
-        for j in range(n):
-            ytmp[j] = y[j] + 0.5 * h * k2[j]
-        averaged_rates(t + 0.5 * h, ytmp, P, ACT, A, W1, M, R, j1e, k3)
-        for j in range(n):
-            ytmp[j] = y[j] + h * k3[j]
-        averaged_rates(t + h, ytmp, P, ACT, A, W1, M, R, j1e, k4)
-        for j in range(n):
-            y[j] += h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
+        averaged_rates(t, y, P, ACT, A, W1, M, R, j1e, K[0])
+        for s in range(1, 4):
+            ts = rk4_stage(s, t, y, h, K, ytmp)
+            averaged_rates(ts, ytmp, P, ACT, A, W1, M, R, j1e, K[s])
+        rk4_combine(y, h, K, y)
         t = t_next
         counters[H.C_STEPS] += 1
         while i < grid.shape[0] and grid[i] <= t:
@@ -269,7 +260,6 @@ def averaged_advance(t, t_end, y, P, ACT, A, W1, M, R, j1e, grid, out, counters)
             i += 1
         counters[H.C_NEXT_SAMPLE] = i
     return t
-
 
 
 class AveragedSimulator(Simulator):

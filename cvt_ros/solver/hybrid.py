@@ -231,13 +231,17 @@ def _locate(split, exact, method, t, h, y0, y1, K, tau, hs, z0, clock, mode, P, 
 
 
 @kernel
-def _emit(method, t0, h, y0, y1, K, mode, P, ACT, grid, out, counters, t_limit, ytmp, dytmp,
-          auxtmp):
-    """Write every grid sample in (t0, t_limit] from the dense output of the step [t0, t0+h]."""
+def _emit(split, exact, method, t, h, y0, y1, K, tau, hs, z0, clock, mode, P, ACT, grid, out,
+          counters, t_limit, ytmp, ztmp, dytmp, auxtmp):
+    """Write every grid sample in (…, t_limit] from the dense output of the step [t, t+h], or,
+    inside a split step (split), of its input part and of the output sub-step [tau, tau+hs]."""
     i = counters[C_NEXT_SAMPLE]
     while i < grid.shape[0] and grid[i] <= t_limit:
-        theta = (grid[i] - t0) / h if h > 0.0 else 1.0
-        dense_state(method, theta, h, y0, y1, K, ytmp)
+        if split:
+            _combine(exact, (grid[i] - tau) / hs if hs > 0.0 else 1.0, t, h, y0, K, tau, hs, z0,
+                     clock, P, ytmp, ztmp, True)
+        else:
+            dense_state(method, (grid[i] - t) / h if h > 0.0 else 1.0, h, y0, y1, K, ytmp)
         project(grid[i], ytmp, mode, P, ACT)
         rhs(grid[i], ytmp, mode, P, ACT, dytmp, auxtmp)
         write_sample(out[i], grid[i], ytmp, mode, auxtmp)
@@ -250,21 +254,6 @@ def _due(grid, counters, t_limit):
     """Is a grid sample due in (…, t_limit]? (Checked before the call: most steps have none.)"""
     i = counters[C_NEXT_SAMPLE]
     return i < grid.shape[0] and grid[i] <= t_limit
-
-
-@kernel
-def _emit_split(exact, t, h, y0, K, tau, hs, z0, clock, mode, P, ACT, grid, out, counters,
-                t_limit, ycomb, ztmp, dytmp, auxtmp):
-    """Grid samples in (tau, t_limit] inside a split step (input and output states combined)."""
-    i = counters[C_NEXT_SAMPLE]
-    while i < grid.shape[0] and grid[i] <= t_limit:
-        sigma = (grid[i] - tau) / hs if hs > 0.0 else 1.0
-        _combine(exact, sigma, t, h, y0, K, tau, hs, z0, clock, P, ycomb, ztmp, True)
-        project(grid[i], ycomb, mode, P, ACT)
-        rhs(grid[i], ycomb, mode, P, ACT, dytmp, auxtmp)
-        write_sample(out[i], grid[i], ycomb, mode, auxtmp)
-        i += 1
-    counters[C_NEXT_SAMPLE] = i
 
 
 @kernel
@@ -367,8 +356,8 @@ def _split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arm
                 dopri5_step(OUTPUT, tau, z, t_ev - tau, mode, P, ACT, Ko, z_new, ztmp, auxtmp,
                             rtol, atol, ERR_OUTPUT)
             if _due(grid, counters, t_ev):
-                _emit_split(exact, t, h, y, K, tau, t_ev - tau, z, clock, mode, P, ACT, grid,
-                            out, counters, t_ev, ycomb, ztmp, dytmp, auxtmp)
+                _emit(True, exact, DOPRI5, t, h, y, y, K, tau, t_ev - tau, z, clock, mode, P, ACT,
+                      grid, out, counters, t_ev, ycomb, ztmp, dytmp, auxtmp)
             if t_ev < t1:
                 dopri5_step(INPUT, t, y, t_ev - t, mode, P, ACT, K, y_new, ytmp, auxtmp, rtol,
                             atol, ERR_INPUT)
@@ -378,8 +367,8 @@ def _split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arm
                 h_io[1] = h_out
             return t_ev, fire, g1, armed
         if _due(grid, counters, t1 if last else tau + hs):
-            _emit_split(exact, t, h, y, K, tau, hs, z, clock, mode, P, ACT, grid, out, counters,
-                        t1 if last else tau + hs, ycomb, ztmp, dytmp, auxtmp)
+            _emit(True, exact, DOPRI5, t, h, y, y, K, tau, hs, z, clock, mode, P, ACT, grid, out,
+                  counters, t1 if last else tau + hs, ycomb, ztmp, dytmp, auxtmp)
         tau = t1 if last else tau + hs
         j += 1
         for i in range(N_OUTPUT):
@@ -456,14 +445,14 @@ def _single_rate(method, t, h, err, clipped, t_end, y, y_new, K, mode, P, ACT, c
         # a true step to the event, not the interpolant: the state there is step-accurate
         _step(method, FULL, t, y, h_ev, mode, P, ACT, K, y_new, ytmp, aux1, rtol, atol, ERR_FULL)
         if _due(grid, counters, t + h_ev):
-            _emit(method, t, h_ev, y, y_new, K, mode, P, ACT, grid, out, counters, t + h_ev,
-                  ytmp, dytmp, auxtmp)
+            _emit(False, False, method, t, h_ev, y, y_new, K, t, h_ev, y, clock, mode, P, ACT,
+                  grid, out, counters, t + h_ev, ytmp, ytmp, dytmp, auxtmp)
         g1, _ = clutch_guard(mode, y_new, K[6], aux1, P)
         return t + h_ev, fire, g1
     t_new = t_end if (clipped and t + h >= t_end) else t + h
     if _due(grid, counters, t_new):
-        _emit(method, t, h, y, y_new, K, mode, P, ACT, grid, out, counters, t_new, ytmp, dytmp,
-              auxtmp)
+        _emit(False, False, method, t, h, y, y_new, K, t, h, y, clock, mode, P, ACT, grid, out,
+              counters, t_new, ytmp, ytmp, dytmp, auxtmp)
     return t_new, fire, g1
 
 

@@ -99,21 +99,31 @@ def dopri5_step(kind, t, y, h, mode, P, ACT, K, y_new, ytmp, aux, rtol, atol, er
     return math.sqrt(total / err_idx.shape[0])
 
 
+@inline_kernel
+def rk4_stage(s, t, y, h, K, ytmp):
+    """Classical RK4, stage s = 1, 2, 3: writes the stage's state into ytmp from K[s − 1] and
+    returns its time; the caller evaluates its own right-hand side there into K[s]. Every RK4
+    in the package (the hybrid model's, the averaged model's) is these stages and rk4_combine."""
+    c = 1.0 if s == 3 else 0.5
+    for i in range(y.shape[0]):
+        ytmp[i] = y[i] + c * h * K[s - 1, i]
+    return t + c * h
+
+
+@inline_kernel
+def rk4_combine(y, h, K, y_new):
+    """y_new = y + h·(K0 + 2·K1 + 2·K2 + K3)/6 (y_new may be y itself)."""
+    for i in range(y.shape[0]):
+        y_new[i] = y[i] + h / 6.0 * (K[0, i] + 2.0 * K[1, i] + 2.0 * K[2, i] + K[3, i])
+
+
 @kernel
 def rk4_step(t, y, h, mode, P, ACT, K, y_new, ytmp, aux):
-    """One classical RK4 step (K[0] = f(t, y) given); writes y_new and K[6] = f(t+h, y_new)."""
-    n = y.shape[0]
-    for i in range(n):
-        ytmp[i] = y[i] + 0.5 * h * K[0, i]
-    rhs(t + 0.5 * h, ytmp, mode, P, ACT, K[1], aux)
-    for i in range(n):
-        ytmp[i] = y[i] + 0.5 * h * K[1, i]
-    rhs(t + 0.5 * h, ytmp, mode, P, ACT, K[2], aux)
-    for i in range(n):
-        ytmp[i] = y[i] + h * K[2, i]
-    rhs(t + h, ytmp, mode, P, ACT, K[3], aux)
-    for i in range(n):
-        y_new[i] = y[i] + h / 6.0 * (K[0, i] + 2.0 * K[1, i] + 2.0 * K[2, i] + K[3, i])
+    """One RK4 step of the hybrid model (K[0] = f(t, y) given); writes y_new and
+    K[6] = f(t+h, y_new) for the dense output."""
+    for s in range(1, 4):
+        rhs(rk4_stage(s, t, y, h, K, ytmp), ytmp, mode, P, ACT, K[s], aux)
+    rk4_combine(y, h, K, y_new)
     rhs(t + h, y_new, mode, P, ACT, K[6], aux)
     return 0.0
 

@@ -144,7 +144,7 @@ def _node(args):
 
 
 def _bench(args):
-    from .bench import main as bench_main
+    from ..bench.main import main as bench_main
     return bench_main(args.rest)
 
 

@@ -1,6 +1,6 @@
 """Fidelity per scene: speed and error of each model against ``full`` (a BENCHMARKS.md section).
 
-    python -m cvt_ros.tools.bench_fidelity [--duration 20] [--scenes paper conveyor mixer ...]
+    cvt-sim bench fidelity [--duration 20] [--scenes paper conveyor mixer ...]
 
 For each scene: each fidelity's wall time for the run (minimum of --repeat runs, after the ratio
 map is built and cached and the kernels are compiled), its relative error in the mean output
@@ -36,7 +36,7 @@ def table(scenes, duration, repeat):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(prog='python -m cvt_ros.tools.bench_fidelity',
+    parser = argparse.ArgumentParser(prog='cvt-sim bench fidelity',
                                      description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument('--duration', type=float, default=20.0, help='simulated time [s]')

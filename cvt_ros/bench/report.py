@@ -1,0 +1,103 @@
+"""The markdown report: number formats, tables, the machine it ran on, and BENCHMARKS.md
+written so that the sections of other benchmarks (ROS node, recording, …) are kept as they are."""
+import datetime
+import math
+import os
+import platform
+import re
+import subprocess
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+# sections this module writes into BENCHMARKS.md; every other section there is kept
+OWN_TITLE = '# Benchmarks'
+
+
+OWN_SECTIONS = ('Default settings', 'Work-precision', 'Speed-up at equal error',
+                'Numerical stability on hard cases', 'Stability limit of fixed-step RK4',
+                'Long run')
+
+
+def fmt(x, digits=3):
+    if x is None or (isinstance(x, float) and math.isnan(x)):
+        return 'nan'
+    if isinstance(x, int):
+        return str(x)
+    if x == 0.0:
+        return '0'
+    return f'{x:.{digits}g}' if 1e-3 <= abs(x) < 1e5 else f'{x:.{digits - 1}e}'
+
+
+def environment():
+    cpu = ''
+    try:
+        for line in Path('/proc/cpuinfo').read_text().splitlines():
+            if line.startswith('model name'):
+                cpu = line.split(':', 1)[1].strip()
+                break
+    except OSError:
+        cpu = platform.processor()
+    versions = {}
+    for mod in ('numpy', 'scipy', 'numba', 'matplotlib'):
+        try:
+            versions[mod] = __import__(mod).__version__
+        except ImportError:
+            versions[mod] = 'absent'
+    try:
+        rev = subprocess.run(['git', 'describe', '--always', '--dirty'], cwd=ROOT, text=True,
+                             capture_output=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        rev = ''
+    return {'cpu': cpu or 'unknown', 'cores': os.cpu_count(), 'python': platform.python_version(),
+            'platform': platform.platform(), 'versions': versions, 'revision': rev or 'unknown',
+            'date': datetime.datetime.now(datetime.UTC).strftime('%Y-%m-%d %H:%M UTC'),
+            'load': os.getloadavg()}
+
+
+def table(header, rows):
+    """Markdown table; a '|' inside a cell is escaped."""
+    def line(cells):
+        return '| ' + ' | '.join(str(c).replace('|', '\\|') for c in cells) + ' |'
+    return [line(header), '|' + '---|' * len(header)] + [line(r) for r in rows]
+
+
+def _blocks(text):
+    """Split markdown into (heading, text) blocks at '# ' / '## ' headings outside code fences."""
+    blocks = []
+    head, lines = None, []
+    fence = False
+    for line in text.splitlines(keepends=True):
+        if line.lstrip().startswith(('```', '~~~')):
+            fence = not fence
+        if not fence and re.match(r'#{1,2} ', line):
+            if head is not None or ''.join(lines).strip():
+                blocks.append((head, ''.join(lines)))
+            head, lines = line.strip(), [line]
+            continue
+        lines.append(line)
+    if head is not None or ''.join(lines).strip():
+        blocks.append((head, ''.join(lines)))
+    return blocks
+
+
+def _own(head):
+    if head is None or head == OWN_TITLE:
+        return True
+    title = head.lstrip('#').strip()
+    return head.startswith('## ') and title.startswith(OWN_SECTIONS)
+
+
+def write_report(path, text):
+    """Write our sections first, then every section of the existing file we did not write (the
+    ROS node's, the recording's, …), unchanged and in their order."""
+    path = Path(path)
+    kept = []
+    if path.exists():
+        kept = [body for head, body in _blocks(path.read_text()) if not _own(head)]
+    out = text
+    if kept:
+        out = out.rstrip() + '\n\n' + ''.join(kept).lstrip('\n')
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(out if out.endswith('\n') else out + '\n')

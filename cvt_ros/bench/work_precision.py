@@ -1,0 +1,367 @@
+"""Work-precision of the hybrid solver against its baselines (SciMLBenchmarks' method).
+
+Every method runs the same scene from the same consistent initial state over the same span; its
+error is measured against one reference solution computed at a tolerance of 1e-13 and checked
+against an independent solver; its cost is the wall time of the integration, the minimum of
+several runs after a warm-up. Each method sweeps its accuracy knob (rtol, or the fixed step),
+which traces a curve of error against time.
+
+Methods (all on the same equations, physics/dynamics.rhs):
+
+* ``dopri5``: the project's adaptive Dormand-Prince 5(4) with events on its dense output and the
+  disengaged output subsystem in closed form (``solver.method: dopri5``), rtol swept,
+  atol = 1e-2·rtol;
+* ``dopri5_integrated``: the same with the output subsystem integrated on its own clock
+  (``solver.output_subsystem: integrate``): the ablation of the exact output;
+* ``rk4``: the project's real-time mode, fixed-step RK4, events located inside the step, the step
+  refined below the shaft's stability limit (``solver.refine_step: auto``), fixed_step swept;
+* ``paper_rk4``: the paper's method: its index-reduced DAE with Baumgarte stabilization
+  (``model.formulation: paper``) and classical fixed-step RK4 without step refinement; its clutch
+  switches are located by the project's event location (the paper does not say how it found them);
+* ``scipy_*``: ``scipy.integrate.solve_ivp`` with terminal events (RK45, DOP853, Radau, LSODA) on
+  the same right-hand side and automaton (solver/reference.py), rtol swept, atol = 1e-2·rtol.
+
+Errors: relative error of φ4 and of ω4 at the end of the span; switch-time error = max |Δt| over
+the clutch switches matched in order (NaN when the number of switches differs from the
+reference's; the mismatch is reported).
+"""
+import math
+import time
+from dataclasses import dataclass, field
+
+from ..scene import load_scene
+from ..solver.reference import solve_reference
+from ..solver.simulator import SimulationError, fastest_rate
+from .measure import (
+    BLOWUP_RESIDUAL,
+    Outcome,
+    relative,
+    run_project,
+    run_scipy,
+    switch_error,
+    timed,
+)
+from .report import fmt, table
+
+SCENES = ('paper', 'conveyor', 'mixer', 'stiff_shaft')
+
+
+# simulated span per scene [s]: (full, --quick)
+DURATIONS = {'paper': (10.0, 2.0), 'conveyor': (5.0, 1.0), 'mixer': (5.0, 1.0),
+             'stiff_shaft': (1.0, 0.3)}
+
+
+DEFAULT_DURATION = (5.0, 1.0)
+
+
+RTOLS = (1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10, 1e-11)
+
+
+QUICK_RTOLS = (1e-4, 1e-6, 1e-8)
+
+
+SCIPY_RTOLS = RTOLS[:-1]   # 1e-11 costs scipy RK45/Radau minutes and adds nothing
+
+
+QUICK_SCIPY_RTOLS = (1e-4, 1e-6)
+
+
+STEPS = (1e-3, 5e-4, 2e-4, 1e-4, 5e-5, 2e-5, 1e-5, 5e-6, 2e-6, 1e-6, 5e-7, 2e-7)
+
+
+N_STEPS, QUICK_N_STEPS = 7, 3
+
+
+REFERENCE = {'solver.method': 'dopri5', 'solver.rtol': 1e-13, 'solver.atol': 1e-15,
+             'solver.max_step': 1e-3, 'solver.output_subsystem': 'exact'}
+
+
+SELF_CHECK = dict(REFERENCE, **{'solver.rtol': 1e-12, 'solver.atol': 1e-14})
+
+
+CHECK_METHOD, CHECK_RTOL, CHECK_ATOL = 'DOP853', 1e-12, 1e-14
+
+
+@dataclass(frozen=True)
+class Method:
+    key: str
+    label: str
+    knob: str                  # 'rtol' | 'h'
+    changes: tuple = ()        # parameter values on top of the scene
+    scipy: str = ''            # solve_ivp method, if a scipy baseline
+    project: bool = False      # the project's solver (numerator of the speed-ups)
+    style: tuple = ('-', 'o')  # plot line style, marker
+
+    @property
+    def values(self):
+        return dict(self.changes)
+
+
+METHODS = (
+    Method('dopri5', 'project dopri5', 'rtol', (('solver.method', 'dopri5'),), project=True,
+           style=('-', 'o')),
+    Method('dopri5_integrated', 'project dopri5, output integrated', 'rtol',
+           (('solver.method', 'dopri5'), ('solver.output_subsystem', 'integrate')),
+           project=True, style=('-', 's')),
+    Method('rk4', 'project rk4 (real-time)', 'h',
+           (('solver.method', 'rk4'), ('solver.refine_step', 'auto')), project=True,
+           style=('-', 'D')),
+    Method('paper_rk4', "paper's method (DAE + RK4)", 'h',
+           (('solver.method', 'rk4'), ('model.formulation', 'paper'),
+            ('solver.refine_step', 'off')), style=('--', 'v')),
+    Method('scipy_RK45', 'scipy RK45', 'rtol', scipy='RK45', style=(':', '^')),
+    Method('scipy_DOP853', 'scipy DOP853', 'rtol', scipy='DOP853', style=(':', 'P')),
+    Method('scipy_Radau', 'scipy Radau', 'rtol', scipy='Radau', style=(':', 'X')),
+    Method('scipy_LSODA', 'scipy LSODA', 'rtol', scipy='LSODA', style=(':', '*')),
+)
+
+
+METHOD_BY_KEY = {m.key: m for m in METHODS}
+
+
+@dataclass
+class Point:
+    setting: float
+    status: str = 'ok'         # ok | failed: … | skipped: …
+    wall: float = math.nan
+    repeats: int = 0
+    phi4_err: float = math.nan
+    omega4_err: float = math.nan
+    switch_err: float = math.nan
+    switches: int = 0
+    work: int = 0
+    energy: float = math.nan
+    h: float = math.nan
+    rejected: int = 0
+
+    @property
+    def ok(self):
+        return self.status == 'ok'
+
+
+@dataclass
+class Reference:
+    phi4: float
+    omega4: float
+    switches: list
+    wall: float
+    checks: list = field(default_factory=list)   # (what, φ4 rel, ω4 rel, switches, max Δt)
+    label: str = ''
+
+
+@dataclass
+class SceneResult:
+    name: str
+    duration: float
+    reference: Reference
+    curves: dict = field(default_factory=dict)   # method key → [Point]
+    notes: list = field(default_factory=list)
+
+
+def score(point, out, ref):
+    point.phi4_err = relative(out.phi4, ref.phi4)
+    point.omega4_err = relative(out.omega4, ref.omega4)
+    point.switches = len(out.switches)
+    point.switch_err = switch_error(out.switches, ref.switches)
+    point.work = out.work
+    point.energy = out.energy
+    point.h = out.h
+    point.rejected = out.rejected
+
+
+def compute_reference(name, values, duration, log):
+    """The project's dopri5 at rtol 1e-13 with the open clutch's output in closed form, and the
+    same with that output integrated; the closed form is used unless the two disagree (a known
+    defect of the closed form can miss a short re-engagement: then the integrated one is the
+    reference). Checked against the chosen variant at rtol 1e-12 and scipy DOP853."""
+    variants = {'exact': run_project(dict(values, **REFERENCE), duration)}
+    if values['load.quadratic'] == 0.0:   # (a quadratic load is integrated either way)
+        variants['integrate'] = run_project(dict(values, **dict(REFERENCE, **{
+            'solver.output_subsystem': 'integrate'})), duration)
+    chosen = 'exact'
+    if 'integrate' in variants:
+        a, b = variants['exact'], variants['integrate']
+        dt = switch_error(a.switches, b.switches)
+        if not (dt <= 1e-9) or relative(a.phi4, b.phi4) > 1e-10:
+            chosen = 'integrate'
+    out = variants[chosen]
+    label = {'exact': 'output in closed form', 'integrate': 'output integrated'}
+    if values['load.quadratic'] != 0.0:
+        label['exact'] = 'output integrated (a quadratic load has no closed form)'
+    ref = Reference(out.phi4, out.omega4, out.switches, out.wall)
+    ref.label = f"project dopri5, rtol 1e-13, atol 1e-15, max_step 1e-3, {label[chosen]}"
+    log(f"[{name}] reference: {ref.label}, {len(out.switches)} switches, {out.wall:.2f} s")
+    checks = [(f"project dopri5, rtol 1e-13, {label[k]}", o) for k, o in variants.items()
+              if k != chosen]
+    extra = {} if chosen == 'exact' else {'solver.output_subsystem': 'integrate'}
+    checks.append((f'project dopri5, rtol 1e-12, atol 1e-14, {label[chosen]}',
+                   run_project(dict(values, **dict(SELF_CHECK, **extra)), duration)))
+    r = solve_reference(values, duration, method=CHECK_METHOD, rtol=CHECK_RTOL, atol=CHECK_ATOL)
+    checks.append((f'scipy {CHECK_METHOD}, rtol 1e-12, atol 1e-14',
+                   Outcome(float(r.y[6]), float(r.y[7]), list(r.switch_times), r.wall_time)))
+    for what, o in checks:
+        ref.checks.append((what, relative(o.phi4, ref.phi4), relative(o.omega4, ref.omega4),
+                           len(o.switches), switch_error(o.switches, ref.switches), o.wall))
+    log(f"[{name}] reference checked against {CHECK_METHOD} ({r.wall_time:.1f} s)")
+    return ref
+
+
+def step_sweep(values, n):
+    """The rk4 steps for a scene: the largest the real-time mode takes (its refined step), then
+    the round steps below it, n in all."""
+    h_stable = 0.5 / fastest_rate(values)
+    steps = [min(STEPS[0], h_stable)]
+    steps += [h for h in STEPS if h < steps[0] * (1.0 - 1e-9)]
+    return steps[:n]
+
+
+def sweep(method, name, values, duration, settings, ref, cfg, log):
+    """One method's curve: loose to tight; a run predicted (from the last two) to take longer
+    than the budget is skipped with all tighter ones."""
+    points = [Point(s) for s in settings]
+    walls = []
+    t_start = time.perf_counter()
+    for k, point in enumerate(points):
+        setting = point.setting
+        if walls:
+            growth = max(1.0, walls[-1] / walls[-2]) if len(walls) >= 2 else 1.0
+            predicted = walls[-1] * growth
+            if predicted > cfg.budget:
+                for p in points[k:]:
+                    p.status = f'skipped: predicted {predicted:.0f} s > {cfg.budget:g} s'
+                break
+        if method.scipy:
+            def fn(setting=setting):
+                return run_scipy(values, duration, method.scipy, setting)
+        else:
+            extra = dict(method.values)
+            if method.knob == 'rtol':
+                extra.update({'solver.rtol': setting, 'solver.atol': setting * 1e-2})
+            else:
+                extra['solver.fixed_step'] = setting
+
+            def fn(extra=extra):
+                return run_project(dict(values, **extra), duration)
+        try:
+            out, wall, n = timed(fn, cfg.quick)
+        except (SimulationError, RuntimeError, FloatingPointError, ValueError) as exc:
+            point.status = f'failed: {str(exc).splitlines()[0][:90]}'
+            continue
+        if not (math.isfinite(out.phi4) and math.isfinite(out.omega4)):
+            point.status = 'failed: non-finite state'
+            continue
+        if method.key == 'paper_rk4' and out.energy > BLOWUP_RESIDUAL:
+            point.status = f'failed: unstable (energy residual {out.energy:.1e})'
+            continue
+        point.wall, point.repeats = wall, n
+        score(point, out, ref)
+        walls.append(wall)
+    done = [p for p in points if p.ok]
+    log(f"[{name}] {method.label}: {len(done)}/{len(points)} points, "
+        f"{time.perf_counter() - t_start:.1f} s")
+    return points
+
+
+def warm_up(log):
+    """Compile / load every kernel and the scipy path once, on a short span of the paper scene
+    (stable for every method at its default settings)."""
+    values = load_scene('paper')
+    t0 = time.perf_counter()
+    for m in METHODS:
+        v = dict(values, **m.values)
+        if m.scipy:
+            solve_reference(values, 0.02, method=m.scipy, rtol=1e-4, atol=1e-6)
+        else:
+            run_project(v, 0.02)
+    log(f"warm-up: {time.perf_counter() - t0:.1f} s")
+
+
+def work_precision(cfg, log):
+    results = []
+    for name in cfg.scenes:
+        values = load_scene(name)
+        duration = cfg.duration_for(name)
+        if cfg.warm:
+            warm_up(log)
+            cfg.warm = False
+        ref = compute_reference(name, values, duration, log)
+        res = SceneResult(name, duration, ref)
+        steps = cfg.steps or step_sweep(values, cfg.n_steps)
+        for m in cfg.methods:
+            if m.knob == 'h':
+                settings = steps
+            elif m.scipy:
+                settings = cfg.scipy_rtols
+            else:
+                settings = cfg.rtols
+            res.curves[m.key] = sweep(m, name, values, duration, list(settings), ref, cfg, log)
+        if values['load.quadratic'] != 0.0:
+            res.notes.append('The quadratic load makes the open clutch\'s output nonlinear: it is '
+                             'integrated on its own clock in both dopri5 variants (no closed '
+                             'form), so the two curves measure the same method.')
+        results.append(res)
+    return results
+
+
+def setting_text(method, p):
+    if method.knob == 'rtol':
+        return f'rtol {p.setting:.0e}'
+    if math.isfinite(p.h) and abs(p.h - p.setting) > 1e-12 * p.setting:
+        return f'h {fmt(p.setting)} → {fmt(p.h)}'
+    return f'h {fmt(p.setting)}'
+
+
+def section_scene(res, cfg, plots):
+    L = [f'### Scene `{res.name}` ({res.duration:g} s)', '']
+    ref = res.reference
+    L += [f"Reference: {ref.label}: φ4 = {ref.phi4:.15g} rad, ω4 = {ref.omega4:.12g} rad/s, "
+          f"{len(ref.switches)} clutch switches, {ref.wall:.2f} s. Checks:", '']
+    rows = []
+    for what, e_phi, e_w, n, dt, wall in ref.checks:
+        rows.append([what, fmt(e_phi), fmt(e_w),
+                     f'{n}/{len(ref.switches)}', fmt(dt) if math.isfinite(dt) else 'nan',
+                     fmt(wall)])
+    L += table(['check', 'φ4 rel. diff.', 'ω4 rel. diff.', 'switches', 'max |Δt| [s]',
+                'wall [s]'], rows)
+    L += ['']
+    if 'output integrated' in ref.label and any('closed form' in c[0] for c in ref.checks):
+        L += ["Here the two project references disagree: the closed-form open-clutch output "
+              "misses short elastic re-engagements of the clutch (a known defect, see "
+              "[Known defects](#known-defects)), so the reference is the variant with that "
+              "output integrated, which converges cleanly (its rtol 1e-12 check).", '']
+    for what, e_phi, _, n, _, _ in ref.checks:
+        if what.startswith('scipy') and (n != len(ref.switches) or e_phi > 1e-9):
+            L += [f"The scipy check disagrees ({n} switches against {len(ref.switches)}): "
+                  'solve_ivp detects an event only by a sign change of the guard between the ends '
+                  'of a step, so a short elastic bounce of the clutch (the slip dips below zero '
+                  'and back inside one step: the stiff shaft makes µs-long contacts) is missed, '
+                  'and the trajectory goes on through a contact that should have engaged. The '
+                  'project looks for such dips inside the step (Hermite minimum of the guard). '
+                  'The reference is therefore checked here by the project\'s own convergence, '
+                  'and the scipy curves carry this model error on top of their tolerance '
+                  'error.', '']
+            break
+    L += res.notes and (res.notes + ['']) or []
+    if res.name in plots:
+        L += [f'![work-precision {res.name}]({plots[res.name]})', '']
+    for key, points in res.curves.items():
+        m = METHOD_BY_KEY[key]
+        L += [f'**{m.label}**', '']
+        rows = []
+        for p in points:
+            if not p.ok:
+                rows.append([setting_text(m, p), p.status, '', '', '', '', '', ''])
+                continue
+            sw = fmt(p.switch_err) if math.isfinite(p.switch_err) else \
+                f'nan ({p.switches}/{len(ref.switches)})'
+            work = f'{p.work} ({p.rejected})' if m.knob == 'rtol' and not m.scipy else p.work
+            rows.append([setting_text(m, p), fmt(p.wall), f'{res.duration / p.wall:.3g}',
+                         fmt(p.phi4_err), fmt(p.omega4_err), sw, work,
+                         fmt(p.energy) if math.isfinite(p.energy) else '–'])
+        L += table(['setting', 'wall [s]', 'RTF', 'φ4 rel. error', 'ω4 rel. error',
+                    'switch-time error [s]',
+                    'RHS evals' if m.scipy else ('steps (rejected)' if m.knob == 'rtol'
+                                                 else 'steps'),
+                    'energy residual'], rows)
+        L += ['']
+    return L
