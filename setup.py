@@ -25,7 +25,7 @@ setup(
     entry_points={
         'console_scripts': [
             'cvt-sim = cvt_ros.tools.cli:main',
-            'cvt_node = cvt_ros.node:main',
+            'cvt_node = cvt_ros.device.main:main',
         ],
     },
 )

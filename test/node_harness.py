@@ -85,11 +85,11 @@ def stamp_ns(msg):
 
 
 class NodeProcess:
-    """``python -m cvt_ros.node ARGS --ros-args ROS_ARGS`` in its own process and domain."""
+    """``python -m cvt_ros.device ARGS --ros-args ROS_ARGS`` in its own process and domain."""
 
     def __init__(self, domain, ros_args=(), args=(), command=None):
         self.log = tempfile.TemporaryFile(mode='w+')
-        cmd = list(command or [sys.executable, '-m', 'cvt_ros.node'])
+        cmd = list(command or [sys.executable, '-m', 'cvt_ros.device'])
         cmd += list(args) + ['--ros-args'] + list(ros_args)
         self.proc = subprocess.Popen(cmd, env=ros_env(domain), stdout=self.log,
                                      stderr=subprocess.STDOUT, cwd=REPO,

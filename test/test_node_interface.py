@@ -366,9 +366,9 @@ def test_parameters_are_declared_with_descriptors(device):
     inertia = descriptors['inertia.motor']
     assert inertia.type == ParameterType.PARAMETER_DOUBLE
     assert 'kg*m^2' in inertia.additional_constraints
-    assert inertia.floating_point_range[0].from_value == 0.0
+    assert inertia.floating_point_range[0].from_value == 1e-6   # the table's bounds
     slip = descriptors['motor.breakdown_slip'].floating_point_range[0]
-    assert (slip.from_value, slip.to_value) == (0.0, 1.0)
+    assert (slip.from_value, slip.to_value) == (1e-4, 1.0)
     assert list(descriptors['shaft.stiffness'].floating_point_range) == []   # may be .inf
     mode = descriptors['linkage.assembly_mode'].integer_range[0]
     assert (mode.from_value, mode.to_value, mode.step) == (-1, 1, 2)
@@ -389,7 +389,7 @@ def test_bad_parameter_sets_are_refused_with_the_reason(device):
     cases = {
         'linkage.crank_length': (0.15, 'Grashof'),
         'inertia.motor': (-1.0, 'out of range'),
-        'inertia.output': (0.0, 'outside (0'),
+        'inertia.output': (0.0, 'out of range'),
         'shaft.stiffness': (-math.inf, 'not a finite number'),
         'linkage.rocker_length': (0.03, 'Grashof'),
         'time_mode': ('warp', "'warp' is not one of"),

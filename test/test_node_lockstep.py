@@ -43,7 +43,9 @@ def device():
         try:
             joints = probe.subscribe(JointState, 'joint_states')
             diagnostics = probe.subscribe(DiagnosticArray, '/diagnostics')
-            assert wait_for(lambda: len(joints) > 0, 30.0), proc.output()
+            # the t = 0 sample went out before this probe matched: ~/reset publishes one again
+            assert wait_for(lambda: joints.subscription.get_publisher_count() > 0, 30.0), \
+                proc.output()
             crank = probe.publisher(Float64, 'crank_length_cmd')
             load = probe.publisher(Float64, 'load_torque_cmd')
             assert wait_for(lambda: crank.get_subscription_count() > 0

@@ -53,6 +53,21 @@ def check_crank_length(crank_length, rocker_length, coupler_length, pivot_distan
     return bound
 
 
+def check_crank_lengths_fit(lengths, rocker_length, coupler_length, pivot_distance):
+    """Raise GrashofError unless each crank length of ``lengths`` ((what, a) pairs: the present
+    length, the commanded one) fits the geometry; return the bound [m].
+
+    A live geometry change must leave room for where the crank is and where it is heading: the
+    one check behind ``Simulator.update_parameters`` and the node's parameter pre-check.
+    """
+    bound = grashof_bound(rocker_length, coupler_length, pivot_distance)
+    for what, a in lengths:
+        if not a < bound:
+            raise GrashofError(f"the Grashof bound would become {bound!r} m, below the {what} "
+                               f"crank length {a!r} m; command a shorter crank first", a, bound)
+    return bound
+
+
 @kernel
 def rocker_angle(phi1, a, b, d, h, sigma):
     """φ2(φ1, a) [rad] from eq. 1 in closed form: P·cos φ2 + Q·sin φ2 = R."""

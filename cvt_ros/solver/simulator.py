@@ -14,7 +14,12 @@ from ..physics import layout as L
 from ..physics.clutch import KIND_ENGAGE_IMPACT, KIND_GRAZE, clutch_engages
 from ..physics.drives import crank_actuator, hold_profile, plan_profile
 from ..physics.dynamics import energy_residual, engage_with_impact, project, rhs
-from ..physics.linkage import GrashofError, check_crank_length, kinematics, rocker_angle
+from ..physics.linkage import (
+    check_crank_length,
+    check_crank_lengths_fit,
+    kinematics,
+    rocker_angle,
+)
 from ..physics.output_exact import modal_form
 from . import hybrid as H
 from .output import COL, N_COLUMNS, write_sample
@@ -224,15 +229,8 @@ class Simulator:
         geometry = (new['linkage.rocker_length'], new['linkage.coupler_length'],
                     new['linkage.pivot_distance'])
         # the crank as it is now, and where it is heading, must fit the new geometry too
-        checks = [(a_now, 'present')]
-        if target is None:  # (a new target was checked by validate())
-            checks.append((self.crank_length_target, 'commanded'))
-        for a, what in checks:
-            try:
-                check_crank_length(a, *geometry)
-            except GrashofError as exc:
-                raise GrashofError(f"the {what} crank length does not fit the new geometry: "
-                                   f"{exc}", exc.value, exc.limit) from None
+        commanded = self.crank_length_target if target is None else target
+        check_crank_lengths_fit((('present', a_now), ('commanded', commanded)), *geometry)
         e_before = self._energy()
         self.values = new
         self.P = params_mod.parameter_vector(new)

@@ -139,7 +139,7 @@ def _demo(args):
 
 
 def _node(args):
-    from ..node import main as node_main
+    from ..device.main import main as node_main
     return node_main(args.rest)
 
 

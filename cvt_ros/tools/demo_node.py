@@ -18,7 +18,8 @@ import time
 
 import numpy as np
 
-from .background_node import BackgroundNode
+from ..device import domains
+from ..device.background_node import BackgroundNode
 
 CRANK_STEP = (3.0, 0.06)      # (simulation time [s], crank length [m])
 BAD_COMMAND = 6.0             # a NaN crank length, to show the refusal
@@ -112,15 +113,17 @@ def _mean(rows, column, lo, hi):
 def run_demo(scene='conveyor', real_time_factor=2.0, out=None):
     """Run the demo; prints the summary to ``out`` (stdout). Returns 0, or 1 if it failed."""
     out = out or sys.stdout
-    domain = 200 + os.getpid() % 30
+    lease = domains.acquire()   # a ROS domain no other run on this machine uses
+    domain = lease.domain
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
     env.setdefault('AMENT_PREFIX_PATH', sys.prefix)
     log = tempfile.TemporaryFile(mode='w+')
-    cmd = [sys.executable, '-m', 'cvt_ros.node', '--scene', scene, '--ros-args',
+    cmd = [sys.executable, '-m', 'cvt_ros.device', '--scene', scene, '--ros-args',
            '-p', f'real_time_factor:={real_time_factor}']
     print(f"$ cvt_node --scene {scene} --ros-args -p real_time_factor:={real_time_factor}",
           file=out)
-    node = subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT)
+    node = subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT,
+                            pass_fds=[lease.fd])
     controller = _Controller(domain)
     try:
         controller.wait_until(0.0, 60.0)

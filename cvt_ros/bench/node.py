@@ -1,7 +1,7 @@
 """Benchmark of the ROS node (not a test): publish-rate accuracy, loop jitter and missed deadlines
 at 1 kHz, and the top speed of fast mode. Prints a markdown table.
 
-    python -m cvt_ros.tools.bench_node [--seconds 10] [--scene conveyor]
+    cvt-sim bench node [--seconds 10] [--scene conveyor]
 
 Each case starts ``cvt_node`` in its own process and ROS domain (discovery limited to this
 machine) and watches it from a subscriber in this process:
@@ -22,13 +22,18 @@ import time
 
 import numpy as np
 
-from .background_node import BackgroundNode
+from ..device import domains
+from ..device.background_node import BackgroundNode
 
 FLOOD_RATE = 10_000
+_LEASES = []
 
 
 def _domain():
-    return 150 + os.getpid() % 50
+    """A ROS domain of its own, held until this process ends (cvt_ros.device.domains)."""
+    lease = domains.acquire()
+    _LEASES.append(lease)
+    return lease.domain
 
 
 def _env(domain):
@@ -103,7 +108,7 @@ def _float(values, key):
 def run_case(name, parameters, seconds, scene, flood=False, warmup=2.0):
     """One node run; returns a dict of figures."""
     domain = _domain()
-    cmd = [sys.executable, '-m', 'cvt_ros.node', '--scene', scene, '--ros-args']
+    cmd = [sys.executable, '-m', 'cvt_ros.device', '--scene', scene, '--ros-args']
     for key, value in parameters.items():
         cmd += ['-p', f'{key}:={value}']
     node = subprocess.Popen(cmd, env=_env(domain), stdout=subprocess.DEVNULL,
@@ -115,7 +120,7 @@ def run_case(name, parameters, seconds, scene, flood=False, warmup=2.0):
         time.sleep(warmup)   # past start-up (discovery, first allocations)
         if flood:
             flooder = subprocess.Popen(
-                [sys.executable, '-m', 'cvt_ros.tools.bench_node', '--flood', str(seconds + 2)],
+                [sys.executable, '-m', 'cvt_ros.bench.node', '--flood', str(seconds + 2)],
                 env=_env(domain), stdout=subprocess.DEVNULL)
             time.sleep(1.0)
         start = watcher.wait_diagnostics(1, 5.0)
@@ -209,7 +214,7 @@ def _fmt(value, digits=0):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(prog='python -m cvt_ros.tools.bench_node',
+    parser = argparse.ArgumentParser(prog='cvt-sim bench node',
                                      description=__doc__.split('\n\n')[0])
     parser.add_argument('--seconds', type=float, default=10.0, help='measured window per case')
     parser.add_argument('--scene', default='conveyor')

@@ -1,0 +1,273 @@
+"""The device core: the transmission as a device advanced one control period at a time. No ROS.
+
+A :class:`Device` owns the simulator of a scene and what a device adds to it: the control period,
+the commands in force (checked, refused with a reason), the actual crank length and its rate, the
+fault state, the step-time statistics. The node (``device/node.py``) drives it from its run loop;
+tests and in-process controllers (``cvt_ros.control``) drive it directly, with no DDS:
+
+    device = Device(load_scene('conveyor', {'solver.method': 'rk4'}), control_period=1e-3)
+    device.command_crank_length(0.05)   # acts from the next period on
+    period = device.advance()           # one control period: period.row, period.events
+
+A command given between two periods acts on the physics from the start of the next period, so a
+run of (command, advance) pairs is the offline core's run with the same commands at the same
+steps, bit for bit: ``Simulator.command_crank_length`` / ``set_load_torque`` then
+``Simulator.advance(control_period)`` and ``Simulator.sample()``.
+"""
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import parameters as params_mod
+from ..parameters import NODE_PARAMETERS, PHYSICS_PARAMETERS, ParameterError
+from ..physics.drives import crank_actuator
+from ..physics.linkage import GrashofError, check_crank_lengths_fit, grashof_bound
+from ..solver.fidelity import make_simulator
+from ..solver.output import COL
+from ..solver.simulator import SimulationError
+
+PHYSICS_NAMES = frozenset(s.name for s in PHYSICS_PARAMETERS)
+NODE_NAMES = frozenset(s.name for s in NODE_PARAMETERS)
+RING_SIZE = 4096   # step times kept for percentiles
+
+
+class CommandError(ValueError):
+    """A refused command: ``topic``, the ``value`` as text, the ``reason`` with the limit."""
+
+    def __init__(self, topic, value, reason):
+        super().__init__(f"refused {topic} = {value}: {reason}")
+        self.topic = topic
+        self.value = value
+        self.reason = reason
+
+
+@dataclass
+class Period:
+    """One control period: start and end time [s], clutch switches inside it (grazing contacts
+    left out), the sample row at its end (``solver.output.COLUMNS``), the actuator's rate at
+    its end [m/s]; ``next_event``: switches already published (realtime publishes them at their
+    own moments)."""
+    t0: float
+    t: float
+    events: list
+    row: np.ndarray
+    crank_rate: float = 0.0
+    next_event: int = 0
+
+
+class Ring:
+    """The last ``n`` values of a measurement, for percentiles (one writer thread)."""
+
+    def __init__(self, n=RING_SIZE):
+        self.buf = np.zeros(n)
+        self.count = 0
+
+    def add(self, value):
+        self.buf[self.count % len(self.buf)] = value
+        self.count += 1
+
+    def clear(self):
+        self.count = 0
+
+    def percentiles(self, qs=(50, 99)):
+        """Percentiles and the maximum over the kept values (None when empty)."""
+        n = min(self.count, len(self.buf))
+        if n == 0:
+            return None
+        data = self.buf[:n].copy()
+        return [float(v) for v in np.percentile(data, qs)] + [float(data.max())]
+
+
+def physics_values(values):
+    """The scene parameters of ``values`` (the node's own left out)."""
+    return {k: v for k, v in values.items() if k in PHYSICS_NAMES}
+
+
+def geometry(values):
+    return (values['linkage.rocker_length'], values['linkage.coupler_length'],
+            values['linkage.pivot_distance'])
+
+
+def check_parameter_change(values, changes, present, commanded):
+    """The validated values after ``changes``, or ParameterError / GrashofError with the reason.
+
+    ``present``, ``commanded``: the actuator's crank length now and the last accepted command
+    [m]; a new geometry must leave room for both (``check_crank_lengths_fit``).
+    """
+    new = params_mod.validate(dict(values, **changes))
+    if any(name.startswith('linkage.') for name in changes):
+        target = new['linkage.crank_length'] if 'linkage.crank_length' in changes else commanded
+        try:
+            check_crank_lengths_fit((('present', present), ('commanded', target)),
+                                    *geometry(new))
+        except GrashofError as exc:
+            raise GrashofError(f"{', '.join(sorted(changes))}: {exc}", exc.value,
+                               exc.limit) from None
+    return new
+
+
+class Device:
+    """The transmission as a device. ``values``: validated scene values (``parameters.validate``
+    or ``scene.load_scene``; the node's own parameters may be among them, the limit
+    ``limits.load_torque`` is taken from them). ``control_period`` [s]: simulation time per
+    ``advance()``. Raises ParameterError / GrashofError for values the physics cannot take."""
+
+    def __init__(self, values, control_period=1e-3):
+        if not (control_period > 0.0 and math.isfinite(control_period)):
+            raise ValueError(f"control period must be a positive finite time, got "
+                             f"{control_period!r}")
+        self.values = dict(values)
+        self.dt = float(control_period)
+        self.step_ns = Ring()
+        self.sim = None
+        self.reset()
+
+    # ------------------------------------------------------------------ state
+    def reset(self):
+        """Back to the scene's initial state (t = 0) with the parameters as they are now; the
+        commands in force become the parameters' crank length and load torque; clears a fault.
+        Raises ParameterError / GrashofError / SimulationError (the fault stays set)."""
+        v = self.values
+        self.crank_target = v['linkage.crank_length']   # last accepted crank length [m]
+        self.load_command = v['load.torque']            # last accepted load torque [N·m]
+        self.fault = None
+        try:
+            self.sim = make_simulator(physics_values(v))
+        except (ParameterError, GrashofError, SimulationError) as exc:
+            self.fault = f"reset failed: {exc}"
+            raise
+
+    @property
+    def t(self):
+        return self.sim.t
+
+    @property
+    def bound(self):
+        """Grashof bound of the present geometry [m] (crank lengths must stay below it)."""
+        return grashof_bound(*geometry(self.values))
+
+    @property
+    def load_limit(self):
+        return self.values.get('limits.load_torque', math.inf)
+
+    def actuator(self):
+        """(actual crank length [m], its rate [m/s]) now."""
+        a, ad, _ = crank_actuator(self.sim.t, self.sim.ACT)
+        return float(a), float(ad)
+
+    def sample(self):
+        """The present state as one row of ``solver.output.COLUMNS``."""
+        return self.sim.sample()
+
+    def present_state(self):
+        """The present state as a Period of zero length (start-up, reset)."""
+        t = self.sim.t
+        return Period(t, t, [], self.sim.sample(), self.actuator()[1])
+
+    # ------------------------------------------------------------------ commands
+    def check_crank_length(self, a):
+        """Raise CommandError unless ``a`` [m] is a crank length the linkage can take now."""
+        bound = self.bound
+        if math.isfinite(a) and 0.0 <= a < bound:
+            return
+        why = 'not a finite number' if not math.isfinite(a) else 'outside the Grashof range'
+        raise CommandError('crank_length_cmd', f"{a!r} m", f"{why}; limit [0, {bound:g}) m")
+
+    def check_load_torque(self, m):
+        """Raise CommandError unless ``m`` [N·m] is finite and within limits.load_torque."""
+        limit = self.load_limit
+        if math.isfinite(m) and abs(m) <= limit:
+            return
+        why = 'not a finite number' if not math.isfinite(m) else 'beyond the limit'
+        raise CommandError('load_torque_cmd', f"{m!r} N*m",
+                           f"{why}; limit |M| <= {limit:g} N*m (parameter limits.load_torque)")
+
+    def command_crank_length(self, a):
+        """Move the crank towards ``a`` [m] (rate- and acceleration-limited) from the next period
+        on. Raises CommandError (nothing changes) for a length the linkage cannot take."""
+        self.check_crank_length(a)
+        self.sim.command_crank_length(a)
+        self.crank_target = a
+
+    def command_load_torque(self, m):
+        """Set the constant part of the load torque [N·m] from the next period on. Raises
+        CommandError (nothing changes) for a non-finite value or one beyond the limit."""
+        self.check_load_torque(m)
+        self.sim.set_load_torque(m)
+        self.load_command = m
+
+    # ------------------------------------------------------------------ parameters
+    def check_parameters(self, changes, present=None, commanded=None):
+        """The validated values after ``changes`` (ParameterError / GrashofError otherwise);
+        ``present`` / ``commanded`` crank lengths default to the device's own."""
+        if present is None:
+            present = self.actuator()[0]
+        if commanded is None:
+            commanded = self.crank_target
+        return check_parameter_change(self.values, changes, present, commanded)
+
+    def update_parameters(self, changes):
+        """Apply parameter changes now (checked again against the present state); physics ones
+        go to the simulator, which books the stored energy's jump."""
+        new = self.check_parameters(changes)
+        physics = {k: new[k] for k in changes if k in PHYSICS_NAMES}
+        if physics:
+            self.sim.update_parameters(physics)
+            if 'linkage.crank_length' in physics:
+                self.crank_target = new['linkage.crank_length']
+            if 'load.torque' in physics:
+                self.load_command = new['load.torque']
+        self.values = new
+
+    def set_values(self, new):
+        """Take already validated values (the node checked them) without touching the physics
+        (the node queues physics changes for its loop: ``update_parameters``)."""
+        self.values = dict(new)
+
+    # ------------------------------------------------------------------ time
+    def advance(self):
+        """Advance one control period; the Period, or None (and ``fault`` set) if the
+        integration failed. A held fault advances nothing until reset()."""
+        if self.fault:
+            return None
+        sim = self.sim
+        t0 = sim.t
+        c0 = time.perf_counter_ns()
+        try:
+            switches = sim.advance(self.dt)
+        except (SimulationError, ValueError) as exc:
+            self.fault = str(exc)
+            return None
+        row = sim.sample()
+        self.step_ns.add(time.perf_counter_ns() - c0)
+        events = [s for s in switches if s.kind != 'graze']
+        return Period(t0, sim.t, events, row, crank_actuator(sim.t, sim.ACT)[1])
+
+    # ------------------------------------------------------------------ reporting
+    def state_text(self):
+        """One line: time, crank length (actual and target), load torque in force, clutch."""
+        sim = self.sim
+        return (f"t={sim.t:.9f} s crank_length={float(sim.crank_length):.6g} m "
+                f"(target {sim.crank_length_target:.6g} m) "
+                f"load_torque={sim.values['load.torque']:.6g} N*m "
+                f"engaged={str(bool(sim.engaged)).lower()}")
+
+    def snapshot(self, last_row):
+        """What the diagnostics report about the simulation (loop thread, every 250 ms)."""
+        sim = self.sim
+        energy = sim.energy_balance()
+        return {
+            't': sim.t, 'switch_count': sim.switch_count,
+            'phi1': float(last_row[COL['phi1']]) if last_row is not None else 0.0,
+            'phi4': float(last_row[COL['phi4']]) if last_row is not None else 0.0,
+            'crank_length': float(sim.crank_length), 'crank_target': sim.crank_length_target,
+            'grashof_bound': float(sim.grashof_bound), 'load_torque': sim.load_torque,
+            'engaged': bool(sim.engaged), 'residual': float(energy['residual']),
+            'relative_residual': float(energy['relative_residual']),
+        }
+
+
+__all__ = ['CommandError', 'Device', 'Period', 'Ring', 'check_parameter_change',
+           'physics_values']

@@ -1,0 +1,68 @@
+"""``cvt_node``: run the device node until SIGINT / SIGTERM."""
+import argparse
+import sys
+
+import rclpy
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.utilities import remove_ros_args
+
+from ..parameters import ParameterError
+from ..physics.linkage import GrashofError
+from ..scene import SceneError
+from .node import DEFAULT_SCENE, CvtSimNode
+
+# The loop thread must get the GIL soon after its deadline even while the executor thread is busy
+# (a flood of commands): Python's default 5 ms switch interval would be a 5 ms jitter.
+GIL_SWITCH_INTERVAL_S = 1e-4
+
+
+def build_parser():
+    p = argparse.ArgumentParser(
+        prog='cvt_node', description='The pulse CVT as a ROS 2 node (cvt_sim). Parameters come '
+        'from --ros-args --params-file SCENE.yaml and -p name:=value.')
+    p.add_argument('--scene', default=None,
+                   help='base scene (name such as conveyor, or a path): fills in every parameter '
+                        'not set by --params-file / -p. Default: conveyor, or the built-in '
+                        'defaults when a --params-file is given (as cvt-sim run reads it)')
+    return p
+
+
+def main(args=None):
+    """Run the node until SIGINT / SIGTERM; returns the exit code (0 on a clean shutdown).
+
+    ``args``: the command line without the program name (None: sys.argv[1:]); ROS arguments
+    follow ``--ros-args``. Used by the ``cvt_node`` console script and ``cvt-sim node``.
+    """
+    argv = list(sys.argv[1:] if args is None else args)
+    options = build_parser().parse_args(remove_ros_args(['cvt_node'] + argv)[1:])
+    if options.scene is not None:
+        base = options.scene
+    elif '--params-file' in argv:
+        base = None
+    else:
+        base = DEFAULT_SCENE
+    sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
+    rclpy.init(args=['cvt_node'] + argv)
+    try:
+        node = CvtSimNode(base_scene=base)
+    except (SceneError, ParameterError, GrashofError) as exc:
+        print(f"cvt_node: {exc}", file=sys.stderr)
+        rclpy.try_shutdown()
+        return 2
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    node.start()
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.stop()
+        executor.shutdown(timeout_sec=0.5)
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

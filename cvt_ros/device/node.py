@@ -1,0 +1,458 @@
+"""The ROS 2 node ``cvt_sim``: the ROS wiring of the device (parameters ↔ scene, topics,
+services, QoS). The physics is the Device (``core.py``), the time modes the RunLoop (``loop.py``),
+the health report ``diagnostics.py``; the full interface is in docs/node.md.
+
+* subscriptions (std_msgs/Float64, reliable): ``crank_length_cmd`` [m], ``load_torque_cmd`` [N·m]
+* publications: ``joint_states`` (sensor_msgs/JointState), ``clutch_engaged`` (std_msgs/Bool,
+  transient local), ``/clock`` (rosgraph_msgs/Clock), ``/diagnostics`` (~1 Hz)
+* services: ``~/reset`` (Trigger), ``~/pause`` (SetBool), ``~/step`` (Trigger)
+* parameters: every parameter of ``cvt_ros.parameters.SPECS`` under its dotted name
+
+Threads: the executor runs the callbacks, which only check and queue; the loop thread owns the
+Device and publishes.
+"""
+import array
+import difflib
+import gc
+import threading
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.callback_groups import CallbackGroup
+from rclpy.clock import Clock, ClockType
+from rclpy.exceptions import InvalidHandle
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rosgraph_msgs.msg import Clock as ClockMsg
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool, Float64
+from std_srvs.srv import SetBool, Trigger
+
+from .. import interface
+from .. import parameters as params_mod
+from ..parameters import ParameterError
+from ..physics.linkage import GrashofError
+from ..scene import NODE_NAME, SceneError, read_scene
+from ..solver.output import COL
+from .core import NODE_NAMES, PHYSICS_NAMES, CommandError, Device, physics_values
+from .descriptors import describe, ros_value
+from .diagnostics import Reporter
+from .loop import RunLoop
+
+DEFAULT_SCENE = 'conveyor'
+# rk4 is the node's default solver: fixed sub-steps with events located inside the step, so every
+# control period costs the same (dopri5's adaptive steps make the cost per period vary).
+REALTIME_SOLVER = 'rk4'
+TAKE_LIMIT = 1000              # command messages the loop takes per subscription and step
+# parameters rclpy or other layers declare themselves: not warned about as unknown overrides
+FOREIGN_PARAMETERS = ('use_sim_time', 'start_type_description_service')
+
+JOINTS = interface.JOINTS   # crank, rocker, clutch_output, output_shaft: J1..J4
+_POSITION = [COL[c] for c in interface.POSITION_COLUMNS]
+_VELOCITY = [COL[c] for c in interface.VELOCITY_COLUMNS]
+_EFFORT = [COL[c] for c in interface.EFFORT_COLUMNS]
+
+
+class _CommandGroup(CallbackGroup):
+    """The command subscriptions' callback group. While the simulation runs free (realtime,
+    fast) the loop thread takes their messages itself at the start of each physics step, and the
+    executor leaves them alone: a flood of commands then costs the loop a few µs per message
+    instead of a fight for the interpreter lock with an executor thread busy at 100 %. While the
+    simulation is held (paused, lockstep) the executor delivers them as usual. Both paths call
+    the same subscription callbacks."""
+
+    def __init__(self):
+        super().__init__()
+        self.loop_takes = False
+
+    def can_execute(self, entity):
+        return not self.loop_takes
+
+    def beginning_execution(self, entity):
+        return True
+
+    def ending_execution(self, entity):
+        pass
+
+
+class CvtSimNode(Node):
+    """The transmission as a ROS 2 device.
+
+    ``base_scene``: scene name or path whose values fill in every parameter the params file and
+    ``-p`` overrides do not set; None = the built-in defaults (as the offline ``cvt-sim run``).
+    Raises SceneError when the resulting scene is invalid.
+    """
+
+    def __init__(self, base_scene=DEFAULT_SCENE, **kwargs):
+        super().__init__(NODE_NAME, **kwargs)
+        values = self._scene_values(base_scene)
+        for name, spec in params_mod.SPECS.items():
+            self.declare_parameter(name, ros_value(spec, values[name]), describe(spec),
+                                   ignore_override=True)
+        self.add_pre_set_parameters_callback(self.coerce_parameters_callback)
+        self.add_on_set_parameters_callback(self.check_parameters_callback)
+        self.add_post_set_parameters_callback(self.apply_parameters_callback)
+
+        self._publish_clock = bool(values['publish_clock'])
+        self._joint_names = [values['joint_prefix'] + j for j in JOINTS]
+        self._warm_up(values)
+        self.device = Device(values, 1.0 / values['publish_rate'])
+        # the last accepted commands (executor thread; the loop applies them a step later)
+        self._crank_target = values['linkage.crank_length']
+        self._load_command = values['load.torque']
+        self.loop = RunLoop(self.device, self, self.get_logger(), values)
+        self._reporter = Reporter()
+        self._recorder = None
+        self._record_lock = threading.Lock()
+        self._js = JointState()
+        self._js_names = None
+        self._clock_msg = ClockMsg()
+        self._published_ns = 0      # simulation time of the last published sample [ns]
+
+        self.joint_states_publisher = self.create_publisher(
+            JointState, interface.JOINT_STATES, interface.joint_states_qos())
+        self.clutch_engaged_publisher = self.create_publisher(
+            Bool, interface.CLUTCH_ENGAGED, interface.clutch_qos())
+        self.clock_publisher = self.create_publisher(
+            ClockMsg, interface.CLOCK, interface.clock_qos())
+        self.diagnostics_publisher = self.create_publisher(
+            DiagnosticArray, interface.DIAGNOSTICS, interface.diagnostics_qos())
+        self._command_group = _CommandGroup()
+        self.crank_length_cmd_subscription = self.create_subscription(
+            Float64, interface.CRANK_LENGTH_CMD, self.crank_length_cmd_callback,
+            interface.command_qos(), callback_group=self._command_group)
+        self.load_torque_cmd_subscription = self.create_subscription(
+            Float64, interface.LOAD_TORQUE_CMD, self.load_torque_cmd_callback,
+            interface.command_qos(), callback_group=self._command_group)
+        self.reset_service = self.create_service(Trigger, '~/reset', self.reset_callback)
+        self.pause_service = self.create_service(SetBool, '~/pause', self.pause_callback)
+        self.step_service = self.create_service(Trigger, '~/step', self.step_callback)
+        # diagnostics on the steady clock: ~1 Hz of wall time whatever use_sim_time says
+        self.diagnostics_timer = self.create_timer(
+            1.0, self.diagnostics_timer_callback, clock=Clock(clock_type=ClockType.STEADY_TIME))
+        self._topic = {   # resolved names (namespace applied), as the recorder stores them
+            'joint_states': self.joint_states_publisher.topic_name,
+            'clutch_engaged': self.clutch_engaged_publisher.topic_name,
+            'clock': self.clock_publisher.topic_name,
+            'diagnostics': self.diagnostics_publisher.topic_name,
+            'crank_length_cmd': self.crank_length_cmd_subscription.topic_name,
+            'load_torque_cmd': self.load_torque_cmd_subscription.topic_name,
+        }
+        if values['record.path']:
+            self._open_recorder(values['record.path'])
+        self.get_logger().info(
+            f"cvt_sim ready: {self.loop.mode} mode, control period {self.device.dt * 1e3:g} ms "
+            f"of simulation time, solver {values['solver.method']}, crank length "
+            f"{values['linkage.crank_length']:g} m (Grashof bound {self.device.bound:g} m), "
+            f"load torque {values['load.torque']:g} N*m")
+
+    # ------------------------------------------------------------------ lifecycle
+    def start(self):
+        """Start the simulation loop thread (after the node is added to an executor)."""
+        # what start-up allocated stays: keep it out of the collector's full passes
+        gc.collect()
+        gc.freeze()
+        self.loop.start()
+
+    def stop(self, timeout=1.5):
+        """Stop the loop thread; returns True if it ended within ``timeout`` [s]."""
+        ended = self.loop.stop(timeout)
+        self._close_recorder()
+        return ended
+
+    def destroy_node(self):
+        self.stop()
+        return super().destroy_node()
+
+    # ------------------------------------------------------------------ scene parameters
+    def _scene_values(self, base_scene):
+        """Base scene + parameter overrides (params file, -p), validated."""
+        raw = {} if base_scene is None else read_scene(base_scene)
+        raw.setdefault('solver.method', REALTIME_SOLVER)
+        # rclpy keeps the overrides of this node (params files and -p) here; reading them lets
+        # the node coerce integers to doubles (`torque: 10`) before declaring with that type.
+        overrides = {name: p.value for name, p in getattr(self, '_parameter_overrides',
+                                                           {}).items()}
+        unknown = []
+        for name, value in overrides.items():
+            if name in params_mod.SPECS:
+                raw[name] = value
+            elif name not in FOREIGN_PARAMETERS and not name.startswith('qos_overrides.'):
+                unknown.append(name)
+        for name in sorted(unknown):
+            close = difflib.get_close_matches(name, params_mod.SPECS, n=1)
+            hint = f" (did you mean {close[0]}?)" if close else ''
+            self.get_logger().warning(
+                f"ignoring parameter {name}: cvt_sim has no such parameter{hint}")
+        try:
+            return params_mod.validate(raw)
+        except (ParameterError, GrashofError) as exc:
+            where = f" (base scene {base_scene})" if base_scene else ''
+            raise SceneError(f"invalid scene parameters{where}: {exc}") from None
+
+    @staticmethod
+    def _warm_up(values):
+        """Load (or compile) the numba kernels before the loop's timing starts."""
+        device = Device(values, 1.0 / values['publish_rate'])
+        device.advance()
+        device.sim.energy_balance()
+
+    def coerce_parameters_callback(self, parameters):
+        """`ros2 param set ... load.torque 10` sends an integer: make it the double it means."""
+        out = []
+        for p in parameters:
+            spec = params_mod.SPECS.get(p.name)
+            if (spec is not None and type(spec.default) is float
+                    and p.type_ == Parameter.Type.INTEGER):
+                p = Parameter(p.name, Parameter.Type.DOUBLE, float(p.value))
+            out.append(p)
+        return out
+
+    def _present_crank_length(self):
+        row = self.loop.last_row
+        return float(row[COL['crank_length']]) if row is not None else 0.0
+
+    def check_parameters_callback(self, parameters):
+        """Refuse (with the reason) a change the physics cannot take; change nothing here."""
+        changes = {p.name: p.value for p in parameters if p.name in params_mod.SPECS}
+        if not changes:
+            return SetParametersResult(successful=True)
+        try:
+            self.device.check_parameters(changes, self._present_crank_length(),
+                                         self._crank_target)
+        except (ParameterError, GrashofError) as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    def apply_parameters_callback(self, parameters):
+        """Accepted changes: node settings at once, physics queued for the next physics step."""
+        changes = {p.name: p.value for p in parameters if p.name in params_mod.SPECS}
+        if not changes:
+            return
+        device, loop = self.device, self.loop
+        new = params_mod.validate(dict(device.values, **changes))
+        physics = {k: new[k] for k in changes if k in PHYSICS_NAMES}
+        node = {k: new[k] for k in changes if k in NODE_NAMES}
+        # the node's settings take effect now; the physics at the loop's next step
+        device.set_values(dict(new, **{k: device.values[k] for k in physics}))
+        if physics:
+            if 'linkage.crank_length' in physics:
+                self._crank_target = new['linkage.crank_length']
+            if 'load.torque' in physics:
+                self._load_command = new['load.torque']
+            loop.request(('params', physics))
+        if 'publish_rate' in node:
+            device.dt = 1.0 / new['publish_rate']
+        if 'steps_per_command' in node:
+            loop.steps_per_command = int(new['steps_per_command'])
+        if {'time_mode', 'real_time_factor', 'publish_rate', 'realtime_priority'} & set(node):
+            loop.retime(new['time_mode'], new['real_time_factor'], int(new['realtime_priority']))
+        if 'publish_clock' in node:
+            self._publish_clock = bool(new['publish_clock'])
+        if 'joint_prefix' in node:
+            self._joint_names = [new['joint_prefix'] + j for j in JOINTS]
+        if 'record.path' in node:
+            self._close_recorder()
+            if new['record.path']:
+                self._open_recorder(new['record.path'])
+        if loop.mode == 'fast' and not self._publish_clock:
+            self.get_logger().warning('fast mode without /clock: consumers with use_sim_time '
+                                      'will not follow (set publish_clock true)')
+
+    # ------------------------------------------------------------------ commands
+    def crank_length_cmd_callback(self, msg):
+        """A crank length [m]: accepted in [0, Grashof bound), else refused (last one stays)."""
+        self._command('crank', 'crank_length_cmd', msg, self.device.check_crank_length,
+                      f"{self._crank_target:g} m")
+
+    def load_torque_cmd_callback(self, msg):
+        """A load torque [N·m]: accepted when finite and |M| <= limits.load_torque."""
+        self._command('load', 'load_torque_cmd', msg, self.device.check_load_torque,
+                      f"{self._load_command:g} N*m")
+
+    def _command(self, kind, topic, msg, check, keeping):
+        value = msg.data
+        loop = self.loop
+        loop.stats.commands += 1
+        self._hand_to_recorder(self._topic[topic], msg, self._published_ns)
+        try:
+            check(value)
+        except CommandError as exc:
+            loop.stats.refused += 1
+            grant = loop.grant()
+            if grant:   # the controller's cycle goes on with the last valid command
+                loop.request(('noop', None, grant))
+            loop.warn(topic, f"{exc}; keeping the last valid command {keeping}", ' refused')
+            return
+        if kind == 'crank':
+            self._crank_target = value
+        else:
+            self._load_command = value
+        loop.request((kind, value, loop.grant()))
+
+    def take_commands(self):
+        """Free-running modes (loop thread): hand the commands that arrived to their callbacks
+        (which check them and queue the valid ones), right before the step they act on."""
+        for sub in (self.crank_length_cmd_subscription, self.load_torque_cmd_subscription):
+            for _ in range(TAKE_LIMIT):
+                try:
+                    with sub.handle:
+                        taken = sub.handle.take_message(sub.msg_type, sub.raw)
+                except InvalidHandle:   # shutting down
+                    return
+                if taken is None:
+                    break
+                sub.callback(taken[0])
+
+    def commands_to_loop(self, takes):
+        """The loop takes the commands itself (running free) or the executor delivers them."""
+        self._command_group.loop_takes = takes
+        executor = self.executor
+        if executor is not None:
+            executor.wake()   # let it rebuild its wait set with / without the commands
+
+    # ------------------------------------------------------------------ services
+    def reset_callback(self, request, response):
+        """Back to the scene's initial state (t = 0, parameters as currently set)."""
+        self._crank_target = self.device.values['linkage.crank_length']
+        self._load_command = self.device.values['load.torque']
+        waiter = self.loop.submit('reset')
+        response.success, response.message = waiter.success, waiter.message
+        return response
+
+    def pause_callback(self, request, response):
+        """data = true: hold the simulation; false: run again (realtime / fast)."""
+        waiter = self.loop.submit('pause', bool(request.data))
+        response.success, response.message = waiter.success, waiter.message
+        return response
+
+    def step_callback(self, request, response):
+        """Advance exactly one control period while paused or in lockstep mode."""
+        loop = self.loop
+        if not (loop.paused or loop.mode == 'lockstep'):
+            response.success = False
+            response.message = (f"~/step advances only while paused or in lockstep mode "
+                                f"(time_mode is {loop.mode}); call ~/pause first")
+            return response
+        waiter = loop.submit('step')
+        response.success, response.message = waiter.success, waiter.message
+        return response
+
+    # ------------------------------------------------------------------ the loop's port
+    def ok(self):
+        return self.context.ok()
+
+    def publish_present(self, period):
+        """The present state: latched clutch state, then a sample (start-up, reset)."""
+        msg = Bool(data=bool(period.row[COL['engaged']]))
+        self.clutch_engaged_publisher.publish(msg)
+        self._hand_to_recorder(self._topic['clutch_engaged'], msg,
+                               interface.stamp_ns(period.t))
+        self.publish_sample(period)
+
+    def publish_switch(self, event):
+        """One clutch switch, at its own simulation time (Bool has no stamp: the switch time is
+        in diagnostics as last_switch_time and goes to the recorder with this message)."""
+        msg = Bool(data=bool(event.engaged))
+        self.clutch_engaged_publisher.publish(msg)
+        self._hand_to_recorder(self._topic['clutch_engaged'], msg, interface.stamp_ns(event.t))
+
+    def publish_sample(self, period):
+        row = period.row
+        ns = interface.stamp_ns(row[COL['t']])
+        msg = self._js
+        names = self._joint_names
+        if names is not self._js_names:
+            msg.name = names
+            self._js_names = names
+        interface.set_stamp(msg.header.stamp, ns)
+        msg.position = array.array('d', row[_POSITION].tolist())
+        msg.velocity = array.array('d', row[_VELOCITY].tolist())
+        msg.effort = array.array('d', row[_EFFORT].tolist())
+        self.joint_states_publisher.publish(msg)
+        self._hand_to_recorder(self._topic['joint_states'], msg, ns)
+        if self._publish_clock:
+            interface.set_stamp(self._clock_msg.clock, ns)
+            self.clock_publisher.publish(self._clock_msg)
+            self._hand_to_recorder(self._topic['clock'], self._clock_msg, ns)
+        self._published_ns = ns
+
+    def recording_reset(self):
+        if self._recorder is not None:
+            self._recorder.mark_reset()
+
+    # ------------------------------------------------------------------ recording hook
+    def recorded_topics(self):
+        """(resolved topic name, message type, QoS profile) of everything the node publishes or
+        receives: what a recorder registers (BagWriter.add_topic) before the first message."""
+        return [
+            (self._topic['joint_states'], JointState, interface.joint_states_qos()),
+            (self._topic['clutch_engaged'], Bool, interface.clutch_qos()),
+            (self._topic['clock'], ClockMsg, interface.clock_qos()),
+            (self._topic['diagnostics'], DiagnosticArray, interface.diagnostics_qos()),
+            (self._topic['crank_length_cmd'], Float64, interface.command_qos()),
+            (self._topic['load_torque_cmd'], Float64, interface.command_qos()),
+        ]
+
+    def _open_recorder(self, path):
+        """Record everything published and received to ``path`` (parameter record.path) at
+        simulation time, through the recording room's SimulationRecorder. A path that cannot be
+        written is logged and the node runs on without recording; a later I/O error (disk full)
+        is logged once and recording stops, the simulation does not."""
+        from ..recording import RecordingError
+        from ..recording.recorder import SimulationRecorder
+        logger = self.get_logger()
+        try:
+            self._recorder = SimulationRecorder(
+                path, topic_names=dict(self._topic), joint_names=self._joint_names,
+                parameters=physics_values(self.device.values), source='cvt_node',
+                on_error=lambda exc: logger.error(f"recording to {path} stopped: {exc}; "
+                                                  f"the simulation goes on"))
+            logger.info(f"recording to {path}")
+        except (RecordingError, OSError, ValueError) as exc:
+            logger.error(f"record.path = {path!r}: cannot record ({exc}); the simulation "
+                         f"goes on without recording")
+            self._recorder = None
+
+    def _close_recorder(self):
+        recorder, self._recorder = self._recorder, None
+        if recorder is not None:
+            with self._record_lock:
+                recorder.close()
+
+    def _hand_to_recorder(self, topic, msg, t_ns):
+        """Every published and received message passes here with its resolved topic name and
+        the simulation time [ns] it belongs to: a sample its stamp, a clutch switch the switch's
+        own time (std_msgs/Bool has no stamp), a command the time of the last published sample
+        when it arrived, diagnostics the same. Called from the loop and the executor threads."""
+        recorder = self._recorder
+        if recorder is None:
+            return
+        with self._record_lock:
+            recorder.write(topic, msg, t_ns)
+
+    # ------------------------------------------------------------------ diagnostics
+    def diagnostics_timer_callback(self):
+        """~1 Hz: timing, switching and energy figures as one DiagnosticStatus."""
+        loop, device = self.loop, self.device
+        fault = device.fault
+        state = 'fault' if fault else ('paused' if loop.paused else loop.mode)
+        report = self._reporter.report(
+            loop.snapshot, loop.stats, device.step_ns,
+            {'mode': loop.mode, 'state': state, 'real_time_factor': loop.rtf,
+             'publish_rate': device.values['publish_rate'], 'control_period': device.dt,
+             'fault': fault})
+        if report is None:
+            return
+        level, message, values = report
+        name = self.get_fully_qualified_name()
+        status = DiagnosticStatus(
+            level=bytes([level]), name=f"{name}: transmission", message=message,
+            hardware_id=name, values=[KeyValue(key=k, value=v) for k, v in values])
+        msg = DiagnosticArray(status=[status])
+        interface.set_stamp(msg.header.stamp, self._published_ns)
+        self.diagnostics_publisher.publish(msg)
+        self._hand_to_recorder(self._topic['diagnostics'], msg, self._published_ns)
+
+
+__all__ = ['CvtSimNode', 'DEFAULT_SCENE', 'REALTIME_SOLVER']
