@@ -81,6 +81,9 @@ def build_parser():
     from .cli_recording import add_parsers
     add_parsers(sub)
 
+    from ..scenario.commands import add_parser as add_scenario_parser
+    add_scenario_parser(sub)   # cvt-sim scenario run|list (controller tests)
+
     scenes = sub.add_parser('scenes', help='list the scenes that ship with the package')
     scenes.set_defaults(func=_scenes)
 

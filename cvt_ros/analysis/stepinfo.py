@@ -1,0 +1,168 @@
+"""Closed-loop step metrics of a speed controller (in the spirit of MATLAB's ``stepinfo``),
+computed from the **cycle-mean** output speed: the mean of ω4 over each crank turn
+(:func:`cvt_ros.analysis.cycles.cycle_metrics`), because the raw ω4 pulses at the clutch
+frequency and would make every threshold crossing a matter of ripple.
+
+A *step* is a change of the set point or of the load (and the start of the run); its window runs
+until the next change or the end. With y the cycle-mean speed at each cycle's middle, r the set
+point, y0 the speed before the step (last complete cycle before it; ω4 at t = 0 for the start),
+rf the set point at the end of the window and Δ = rf − y0:
+
+* ``rise_time`` [s]: from y crossing y0 + 10 % Δ to y crossing y0 + 90 % Δ (linear between cycle
+  middles; set-point steps only, NaN if 90 % is never reached);
+* ``overshoot`` [%]: max over the window of (y − rf)·sign Δ, in % of |Δ| (≥ 0; set-point steps);
+* ``settling_time`` [s]: from the step to the end of the last cycle outside the band rf ± 2 % of
+  |Δ| (set-point steps) or of |rf| (load steps); NaN if the window ends outside the band;
+* ``steady_state_error`` [rad/s]: rf − mean y over the last 10 % of the window (≥ 3 cycles);
+* ``max_deviation`` [rad/s]: max |r − y| after the step (load steps: the disturbance's dip);
+* ``iae`` [rad]: ∫|r − y| dt over the window (per cycle: |r(middle) − y|·cycle length);
+* ``peak_clutch_torque`` [N·m], ``crank_travel`` [m] (Σ|Δa| of the actual crank length),
+  ``switches_per_second`` [1/s]: what the step cost the mechanism.
+
+The run-level summary (:func:`summarize_steps`) takes the worst of each over the steps, and IAE,
+peak clutch torque, crank travel and switches per second over the whole run.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .cycles import cycle_metrics
+from .trace import Trace
+
+__all__ = ['METRICS', 'StepEvent', 'step_metrics', 'summarize_steps']
+
+SETTLING_BAND = 0.02     # ±2 %
+STEADY_FRACTION = 0.1    # steady-state error over the last 10 % of the window
+MIN_STEADY_CYCLES = 3
+
+#: metric name → unit, in report order
+METRICS = {
+    'rise_time': 's', 'overshoot': '%', 'settling_time': 's', 'steady_state_error': 'rad/s',
+    'max_deviation': 'rad/s', 'iae': 'rad', 'peak_clutch_torque': 'N*m', 'crank_travel': 'm',
+    'switches_per_second': '1/s',
+}
+
+
+@dataclass(frozen=True)
+class StepEvent:
+    """A change the loop has to answer: time [s], 'start' | 'setpoint' | 'load', values."""
+    t: float
+    kind: str
+    before: float
+    after: float
+
+
+def _crossing(tm: np.ndarray, f: np.ndarray, level: float) -> float:
+    """First time the sequence f (at times tm) reaches ``level`` from below, linear in between."""
+    hit = np.flatnonzero(f >= level)
+    if not len(hit):
+        return math.nan
+    i = int(hit[0])
+    if i == 0:
+        return float(tm[0])
+    f0, f1 = f[i - 1], f[i]
+    s = (level - f0) / (f1 - f0) if f1 != f0 else 0.0
+    return float(tm[i - 1] + s * (tm[i] - tm[i - 1]))
+
+
+def step_metrics(trace: Trace, reference_t: np.ndarray, reference: np.ndarray,
+                 events: list[StepEvent]) -> list[dict]:
+    """The metrics of each step in ``events`` (time order) for one run.
+
+    ``reference_t``, ``reference``: the set point on a time grid (the control periods).
+    Returns one dict per event: its time, kind, before/after values, window end and METRICS.
+    """
+    table = cycle_metrics(trace)[0]
+    t_start = table['t_start']
+    t_end = table.t_end
+    tm = t_start + 0.5 * table['period']
+    y = table['output_speed']
+    r_mid = np.interp(tm, reference_t, reference)
+    a = trace.crank_length
+    tc = trace.effort[:, 1]
+    out = []
+    end_of_run = float(trace.t[-1])
+    for j, ev in enumerate(events):
+        t_e = events[j + 1].t if j + 1 < len(events) else end_of_run
+        row = {'t': ev.t, 'kind': ev.kind, 'before': ev.before, 'after': ev.after,
+               'window_end': t_e}
+        row.update(_window(trace, tm, t_start, t_end, y, r_mid, reference_t, reference, a, tc,
+                           ev, t_e))
+        out.append(row)
+    return out
+
+
+def _window(trace, tm, t_start, t_end, y, r_mid, ref_t, ref, a, tc, ev, t_e):
+    m = dict.fromkeys(METRICS, math.nan)
+    inside = (t_start >= ev.t) & (t_end <= t_e)
+    samples = (trace.t >= ev.t) & (trace.t <= t_e)
+    span = t_e - ev.t
+    if np.any(samples):
+        m['peak_clutch_torque'] = float(np.nanmax(tc[samples]))
+        aw = a[samples]
+        m['crank_travel'] = float(np.nansum(np.abs(np.diff(aw)))) if len(aw) > 1 else 0.0
+    if span > 0:
+        n_sw = np.count_nonzero((trace.switch_t > ev.t) & (trace.switch_t <= t_e))
+        m['switches_per_second'] = n_sw / span
+    idx = np.flatnonzero(inside)
+    if not len(idx):
+        return m
+    yw, tw = y[idx], tm[idx]
+    period = t_end[idx] - t_start[idx]
+    err = r_mid[idx] - yw
+    m['iae'] = float(np.sum(np.abs(err) * period))
+    m['max_deviation'] = float(np.max(np.abs(err)))
+    # the set point in force at the end of the window (a step at t_e belongs to the next one)
+    last = max(int(np.searchsorted(ref_t, t_e, side='left')) - 1, 0)
+    rf = float(ref[last]) if t_e < ref_t[-1] else float(ref[-1])
+    n_ss = max(MIN_STEADY_CYCLES, int(math.ceil(STEADY_FRACTION * len(idx))))
+    if len(idx) >= n_ss:
+        m['steady_state_error'] = float(rf - np.mean(yw[-n_ss:]))
+    before = np.flatnonzero(t_end <= ev.t)
+    y0 = float(y[before[-1]]) if len(before) and ev.kind != 'start' else \
+        float(np.interp(ev.t, trace.t, trace.omega[:, 3]))
+    delta = rf - y0
+    tracking = ev.kind in ('start', 'setpoint')
+    scale = abs(delta) if tracking else abs(rf)
+    if tracking and abs(delta) > 0:
+        sign = math.copysign(1.0, delta)
+        f = (yw - y0) * sign
+        t10 = _crossing(tw, f, 0.1 * abs(delta))
+        t90 = _crossing(tw, f, 0.9 * abs(delta))
+        m['rise_time'] = t90 - t10
+        m['overshoot'] = float(max(0.0, np.max((yw - rf) * sign)) / abs(delta) * 100.0)
+    if scale > 0:
+        outside = np.flatnonzero(np.abs(yw - rf) > SETTLING_BAND * scale)
+        if not len(outside):
+            m['settling_time'] = 0.0
+        elif outside[-1] < len(idx) - MIN_STEADY_CYCLES:
+            m['settling_time'] = float(t_end[idx[outside[-1]]] - ev.t)
+    return m
+
+
+def summarize_steps(steps: list[dict], trace: Trace, reference_t: np.ndarray,
+                    reference: np.ndarray) -> dict:
+    """Run-level metrics: the worst step for the step metrics (rise time, overshoot, settling
+    time, |steady-state error| of the last step, max deviation), the whole run for IAE, peak
+    clutch torque, crank travel and switches per second."""
+    def worst(name, kinds=None):
+        vals = [s[name] for s in steps if (kinds is None or s['kind'] in kinds)
+                and math.isfinite(s[name])]
+        return max(vals, key=abs) if vals else math.nan
+    whole = step_metrics(trace, reference_t, reference,
+                         [StepEvent(float(trace.t[0]), 'start', math.nan, math.nan)])[0]
+    return {
+        'rise_time': worst('rise_time', ('start', 'setpoint')),
+        'overshoot': worst('overshoot', ('start', 'setpoint')),
+        'settling_time': worst('settling_time'),
+        'steady_state_error': steps[-1]['steady_state_error'] if steps else math.nan,
+        'max_deviation': worst('max_deviation', ('load',)),
+        'iae': whole['iae'],
+        'peak_clutch_torque': whole['peak_clutch_torque'],
+        'crank_travel': whole['crank_travel'],
+        'switches_per_second': whole['switches_per_second'],
+    }

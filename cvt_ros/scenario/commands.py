@@ -1,0 +1,140 @@
+"""``cvt-sim scenario ...``: check the inputs, run the library, print, return an exit code.
+
+Exit codes: 0 the run completed, 1 it stopped early (controller error, simulation failure; the
+outputs hold everything up to that moment), 2 bad input (scenario file, controller spec, output
+path), nothing run.
+"""
+import sys
+
+from ..recording.errors import RecordingError
+from .harness import HarnessError, run_scenario
+from .model import ScenarioError, available_scenarios, load_scenario
+
+
+def add_parser(sub):
+    """The ``scenario`` command and its subcommands on an argparse subparsers object."""
+    scenario = sub.add_parser(
+        'scenario', help='run a controller test scenario (set points, loads, metrics)',
+        description='Controller tests: a scenario file (config/scenarios/*.yaml; '
+                    'docs/controller.md) gives the scene, the set-point and load schedules, '
+                    'the crank limits and the sensor/actuator models; a controller runs '
+                    'against the device and the step metrics come out as a table, JSON, a PNG '
+                    'and an MCAP recording.')
+    ssub = scenario.add_subparsers(dest='scenario_command', metavar='SUBCOMMAND')
+    run = ssub.add_parser(
+        'run', help='run one scenario with a controller',
+        description='Run SCENARIO (a file or a shipped scenario name) with a controller. '
+                    'Without --controller the reference controller (cycle-mean speed PI) runs. '
+                    'Prints the step metrics (rise time, overshoot, settling time 2 %%, '
+                    'steady-state error, IAE, peak clutch torque, crank travel, switches/s).')
+    run.add_argument('scenario', help='scenario file or name (see `cvt-sim scenario list`)')
+    who = run.add_mutually_exclusive_group()
+    who.add_argument('--controller', metavar='MODULE:FACTORY',
+                     help='Python controller: FACTORY(scenario) returns a callable '
+                          'controller(measurement) -> crank length [m] or None (default: '
+                          'cvt_ros.control.speed_pi:reference_controller)')
+    who.add_argument('--controller-cmd', metavar='"COMMAND"',
+                     help='an external controller process (e.g. a ROS node) started with this '
+                          'shell command; needs --backend dds')
+    run.add_argument('--backend', choices=('offline', 'lockstep', 'dds'), default=None,
+                     help='offline: against the core; lockstep: the device in this process; '
+                          'dds: cvt_node in another process over ROS 2 (default: offline, or '
+                          'dds with --controller-cmd)')
+    run.add_argument('--realtime', type=float, nargs='?', const=1.0, metavar='FACTOR',
+                     help='dds back end: run against the wall clock (HIL rehearsal) at FACTOR x '
+                          'real time (default 1) instead of lockstep')
+    run.add_argument('--json', metavar='OUT', help='write the metrics as JSON')
+    run.add_argument('--mcap', metavar='OUT', help='record the run (rosbag2 MCAP)')
+    run.add_argument('--plot', metavar='OUT.png', help='write the plot (speed, crank, load, '
+                                                      'clutch)')
+    run.add_argument('--duration', type=float, metavar='T', help='override the duration [s]')
+    run.add_argument('--seed', type=int, help='override the seed')
+    run.add_argument('--overwrite', action='store_true', help='replace existing output files')
+    run.add_argument('--quiet', action='store_true', help='no progress bar, no table')
+    run.set_defaults(func=run_command)
+    lst = ssub.add_parser('list', help='list the shipped scenarios')
+    lst.set_defaults(func=list_command)
+    scenario.set_defaults(func=lambda args: (scenario.print_help(), 2)[1])
+
+
+def _fail(message, code=2):
+    print(f"cvt-sim scenario: error: {message}", file=sys.stderr)
+    return code
+
+
+def list_command(args):
+    from .model import resolve_scenario
+    for name in available_scenarios():
+        first = resolve_scenario(name).read_text().splitlines()[0].lstrip('# ')
+        print(f"{name:28s} {first}")
+    return 0
+
+
+def run_command(args):
+    overrides = {}
+    if args.duration is not None:
+        overrides['duration'] = args.duration
+    if args.seed is not None:
+        overrides['seed'] = args.seed
+    backend = args.backend or ('dds' if args.controller_cmd else 'offline')
+    if args.controller_cmd and backend != 'dds':
+        return _fail(f"--controller-cmd runs an external process: it needs --backend dds, not "
+                     f"{backend}")
+    if args.realtime is not None and backend != 'dds':
+        return _fail('--realtime needs --backend dds (the device against the wall clock)')
+    try:
+        scenario = load_scenario(args.scenario, overrides)
+        for path in (args.json, args.plot):
+            _check_output(path, args.overwrite)
+        if args.mcap:
+            from ..recording.recorder import check_target
+            check_target(args.mcap, args.overwrite)
+    except (ScenarioError, RecordingError, OSError) as exc:
+        return _fail(str(exc))
+    options = {}
+    if backend == 'dds':
+        options = {'controller_cmd': args.controller_cmd, 'realtime': args.realtime}
+    bar, progress = (None, None) if args.quiet else _progress(scenario.duration)
+    try:
+        run = run_scenario(scenario, args.controller, backend, progress=progress, **options)
+    except HarnessError as exc:
+        return _fail(str(exc))
+    finally:
+        if bar is not None:
+            bar.close()
+    if not args.quiet:
+        print(run.format_table())
+    print(run.summary_line())
+    code = 0 if run.ok else 1
+    if args.json:
+        run.write_json(args.json)
+        print(f"metrics → {args.json}")
+    if args.plot:
+        from .plot import plot_run
+        plot_run(run, args.plot)
+        print(f"plot → {args.plot}")
+    if args.mcap:
+        from .recording import write_mcap
+        count, error = write_mcap(run, args.mcap, args.overwrite)
+        print(f"recording → {args.mcap} ({count} messages)")
+        if error is not None:
+            code = _fail(f"recording stopped: {error}", 1)
+    return code
+
+
+def _check_output(path, overwrite):
+    import os
+    if path and os.path.exists(path) and not overwrite:
+        raise ScenarioError(f"{path} exists (use --overwrite to replace it)")
+    if path and not os.path.isdir(os.path.dirname(os.path.abspath(path))):
+        raise ScenarioError(f"{path}: no such directory")
+
+
+def _progress(duration):
+    from tqdm import tqdm
+    bar = tqdm(total=duration, unit='s sim', delay=2.0, file=sys.stderr, leave=False,
+               bar_format='{l_bar}{bar}| {n:.1f}/{total:.1f} s sim [{elapsed}<{remaining}]')
+
+    def update(done, total):
+        bar.update(done - bar.n)
+    return bar, update

@@ -1,0 +1,185 @@
+"""One harness for every back end: a scenario, a controller and a plant, stepped in lockstep.
+
+Each control period k (t_k = k·period):
+
+1. the load schedule's value for period k goes to the plant if it changed (a disturbance never
+   advances time; it acts from t_k);
+2. the sensor model turns the plant's sample at t_k into the controller-facing Measurement (with
+   the set point of the schedule at t_k);
+3. the controller answers a crank-length command (or None: keep the last one); the harness checks
+   it (a non-finite answer or an exception stops the run with the sim time), clamps it to the
+   scenario's crank limits (min, max, rate; counted), passes it through the actuator model and,
+   if it changed, to the plant;
+4. the plant advances one period and returns its sample at t_{k+1} and the switches inside.
+
+A run that stops early (controller error, simulation failure, Ctrl-C) keeps everything up to that
+moment: ``ScenarioRun.error`` says why and when, the trace and the metrics cover what ran.
+"""
+import importlib
+import inspect
+import math
+import time
+
+import numpy as np
+
+from ..control.measurement import ControllerError
+from ..control.speed_pi import reference_controller
+from ..solver.output import COL, N_COLUMNS
+from ..solver.simulator import SimulationError
+from .plants import OfflinePlant
+from .realism import ActuatorModel, SensorModel
+from .result import ScenarioRun
+
+BACKENDS = ('offline', 'lockstep', 'dds')
+CLAMP_TOLERANCE = 1e-12   # m: a limited command counts as clamped beyond rounding
+REFERENCE = 'cvt_ros.control.speed_pi:reference_controller'
+_POS = [COL[c] for c in ('phi1', 'phi2', 'phi3', 'phi4')]
+_VEL = [COL[c] for c in ('omega1', 'omega2', 'omega3', 'omega4')]
+_EFF = [COL[c] for c in ('motor_torque', 'clutch_torque', 'shaft_torque', 'load_torque')]
+_A, _ENG = COL['crank_length'], COL['engaged']
+
+
+class HarnessError(RuntimeError):
+    """The harness cannot start (unknown back end, a controller spec that does not load)."""
+
+
+def plant_values(scenario):
+    """The scene values every back end builds its device from: the scenario's scene with the load
+    schedule's initial value as the load torque."""
+    return dict(scenario.values, **{'load.torque': scenario.load.initial})
+
+
+def load_controller(spec, scenario):
+    """``MODULE:FACTORY`` → the controller ``FACTORY(scenario)`` (or ``FACTORY()``) returns."""
+    module_name, sep, attr = str(spec).partition(':')
+    if not sep or not module_name or not attr:
+        raise HarnessError(f"--controller {spec!r}: expected MODULE:FACTORY, e.g. {REFERENCE}")
+    try:
+        module = importlib.import_module(module_name)
+    except Exception as exc:   # noqa: BLE001 — any import failure is the user's module's
+        raise HarnessError(f"--controller {spec!r}: cannot import {module_name}: "
+                           f"{exc!r}") from None
+    factory = module
+    for part in attr.split('.'):
+        factory = getattr(factory, part, None)
+        if factory is None:
+            raise HarnessError(f"--controller {spec!r}: {module_name} has no {attr}")
+    try:
+        takes_scenario = bool(inspect.signature(factory).parameters)
+    except (TypeError, ValueError):
+        takes_scenario = True
+    try:
+        controller = factory(scenario) if takes_scenario else factory()
+    except Exception as exc:   # noqa: BLE001
+        raise HarnessError(f"--controller {spec!r}: {attr}() raised {exc!r}") from None
+    if not callable(controller):
+        raise HarnessError(f"--controller {spec!r}: {attr}() returned {controller!r}, not a "
+                           f"callable controller(measurement) -> crank length")
+    return controller
+
+
+def make_plant(backend, scenario, **options):
+    if backend == 'offline':
+        return OfflinePlant(plant_values(scenario), scenario.control_period)
+    if backend == 'lockstep':
+        from .lockstep import LockstepPlant
+        return LockstepPlant(plant_values(scenario), scenario.control_period, **options)
+    if backend == 'dds':
+        from .dds import DdsPlant
+        return DdsPlant(scenario, **options)
+    raise HarnessError(f"unknown back end {backend!r}; one of {', '.join(BACKENDS)}")
+
+
+def run_scenario(scenario, controller=None, backend='offline', progress=None, plant=None,
+                 **options):
+    """Run ``scenario`` with ``controller`` (a callable, a ``MODULE:FACTORY`` string, or None for
+    the reference controller) on ``backend``; returns a :class:`ScenarioRun` (metrics included).
+    ``progress(done_s, total_s)`` is called about every 1 % of the run."""
+    name = REFERENCE if controller is None else getattr(controller, '__qualname__', None) \
+        or type(controller).__name__
+    if controller is None:
+        controller = reference_controller(scenario)
+    elif isinstance(controller, str):
+        name = controller
+        controller = load_controller(controller, scenario)
+    if plant is None:
+        plant = make_plant(backend, scenario, **options)
+    try:
+        return _loop(scenario, controller, plant, str(name), progress)
+    finally:
+        plant.close()
+
+
+def _loop(scenario, controller, plant, controller_name, progress):
+    n = scenario.periods
+    dt = scenario.control_period
+    grid = scenario.time_grid()
+    setpoint = scenario.setpoint.sample(grid)
+    load = scenario.load.sample(grid)
+    limits = scenario.crank_limits
+    rows = np.full((n + 1, N_COLUMNS), np.nan)
+    commands = np.full(n + 1, np.nan)
+    switches = []
+    sensors = SensorModel(scenario.sensors, dt, scenario.seed)
+    wall0 = time.perf_counter()
+    row = plant.start()
+    rows[0] = row
+    actuator = ActuatorModel(scenario.actuator, float(row[_A]))
+    previous = float(row[_A])      # last command after the limiter [m], and its period
+    k_previous = -1                # (the start counts as a command one period before)
+    sent = previous                # last command the plant got [m]
+    load_now = load[0]
+    clamped = 0
+    error = None
+    every = max(1, n // 100)
+    k = 0
+    try:
+        for k in range(n):
+            if load[k] != load_now:
+                load_now = load[k]
+                plant.set_load_torque(float(load_now))
+            r = row.tolist()
+            m = sensors.observe(r[0], (r[1], r[2], r[3], r[4]), (r[5], r[6], r[7], r[8]),
+                                (r[14], r[11], r[15], r[13]), r[12], r[9] > 0.5, setpoint[k])
+            try:
+                a = controller(m)
+            except Exception as exc:   # noqa: BLE001 — the user's code: report, keep the run
+                raise ControllerError(f"the controller raised {exc!r} at t = {r[0]:.6f} s "
+                                      f"(period {k})") from exc
+            if a is not None:
+                try:
+                    a = float(a)
+                except (TypeError, ValueError):
+                    raise ControllerError(f"the controller returned {a!r} at t = {r[0]:.6f} s "
+                                          f"(period {k}): not a crank length [m]") from None
+                if not math.isfinite(a):
+                    raise ControllerError(f"the controller returned {a!r} at t = {r[0]:.6f} s "
+                                          f"(period {k}): not a finite crank length")
+                reach = limits.rate * (k - k_previous) * dt   # rate limit since the last one
+                limited = min(max(a, limits.min, previous - reach), limits.max, previous + reach)
+                if abs(limited - a) > CLAMP_TOLERANCE:
+                    clamped += 1
+                previous, k_previous = limited, k
+                commands[k] = limited
+                passed = actuator.command(limited)
+                if passed is not None and passed != sent:
+                    sent = passed
+                    plant.command_crank_length(passed)
+            row, sw = plant.step()
+            rows[k + 1] = row
+            switches.extend(sw)
+            if progress is not None and k % every == 0:
+                progress(k * dt, scenario.duration)
+        k = n
+    except ControllerError as exc:
+        error = str(exc)
+    except SimulationError as exc:
+        error = f"the simulation failed in period {k}: {exc}"
+    except KeyboardInterrupt:
+        error = f"interrupted at t = {k * dt:.6f} s (period {k})"
+    wall = time.perf_counter() - wall0
+    done = k if error is None else k
+    return ScenarioRun(scenario=scenario, backend=plant.name, controller=controller_name,
+                       samples=rows[:done + 1], setpoint=setpoint[:done + 1],
+                       load=load[:done + 1], commands=commands[:done + 1], switches=switches,
+                       clamped=clamped, wall_time=wall, error=error)

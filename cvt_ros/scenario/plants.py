@@ -1,0 +1,39 @@
+"""The device as the harness sees it: a plant stepped one control period at a time.
+
+Every back end offers the same five calls, so the harness loop (harness.py) is one piece of code:
+
+* ``start()`` → the sample row at t = 0 (``cvt_ros.solver.output.COLUMNS``);
+* ``set_load_torque(m)`` and ``command_crank_length(a)``: take effect at the next period;
+* ``step()`` → (sample row at the end of the period, clutch switches inside it as (t, engaged));
+* ``close()``.
+
+``OfflinePlant`` drives the core's Simulator directly: apply commands, ``advance(period)``,
+``sample()`` — the same calls, in the same order, as the device's lockstep loop makes, which is
+why the two give bit-identical traces.
+"""
+from ..solver.fidelity import make_simulator
+
+
+class OfflinePlant:
+    """The core's Simulator, no device around it (``--backend offline``)."""
+    name = 'offline'
+
+    def __init__(self, values, period):
+        self.sim = make_simulator(values)
+        self.period = period
+
+    def start(self):
+        return self.sim.sample()
+
+    def set_load_torque(self, torque):
+        self.sim.set_load_torque(torque)
+
+    def command_crank_length(self, length):
+        self.sim.command_crank_length(length)
+
+    def step(self):
+        switches = self.sim.advance(self.period)
+        return self.sim.sample(), [(s.t, s.engaged) for s in switches if s.kind != 'graze']
+
+    def close(self):
+        pass

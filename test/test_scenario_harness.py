@@ -1,0 +1,156 @@
+"""The scenario harness offline: the reference controller meets its metrics on the shipped
+scenarios, bad controllers stop the run with the cause and the sim time and keep what ran, the
+outputs (JSON, MCAP, PNG) are what other tools read."""
+import json
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from cvt_ros.scenario import HarnessError, load_scenario, run_scenario
+from cvt_ros.scenario.recording import write_mcap
+
+
+@pytest.fixture(scope='module')
+def load_step_run():
+    return run_scenario(load_scenario('conveyor_load_step'))
+
+
+def test_reference_controller_rejects_the_load_step(load_step_run):
+    run = load_step_run
+    assert run.ok and run.backend == 'offline' and run.clamped == 0
+    kinds = [s['kind'] for s in run.steps]
+    assert kinds == ['start', 'load', 'load']
+    for s in run.steps[1:]:
+        # open loop the 6 N·m step costs ~2.7 rad/s; closed loop well under 1 rad/s, recovered
+        assert s['max_deviation'] < 1.0
+        assert abs(s['steady_state_error']) < 0.05
+        assert s['settling_time'] < 1.0
+    assert run.metrics['peak_clutch_torque'] == pytest.approx(
+        np.max(run.column('clutch_torque')))
+    assert 45 < run.metrics['switches_per_second'] < 70   # two per crank turn, ~24 turns/s
+
+
+def test_reference_controller_follows_set_point_steps():
+    run = run_scenario(load_scenario('conveyor_setpoint_steps'))
+    assert run.ok
+    up, down = run.steps[1], run.steps[2]
+    assert up['kind'] == down['kind'] == 'setpoint'
+    for s in (up, down):
+        assert s['overshoot'] < 2.0
+        assert s['settling_time'] < 5.0
+        assert abs(s['steady_state_error']) < 0.2
+    # the crank goes where the plant's gain (~1.46 rad/s per mm) says
+    a = run.column('crank_length')
+    k_up, k_end = int(7.9 / 1e-3), len(a) - 1
+    assert (a[k_up] - a[k_end]) * 1e3 * 1.46 == pytest.approx(25.0, rel=0.15)
+
+
+def test_json_table_and_plot(load_step_run, tmp_path):
+    run = load_step_run
+    path = tmp_path / 'm.json'
+    run.write_json(path)
+    doc = json.loads(path.read_text())
+    for name in ('rise_time', 'overshoot', 'settling_time', 'steady_state_error', 'iae',
+                 'peak_clutch_torque', 'crank_travel', 'switches_per_second'):
+        assert name in doc['metrics'] and name in doc['steps'][1]
+    assert doc['completed'] is True and doc['steps'][1]['kind'] == 'load'
+    assert doc['metrics']['iae'] == pytest.approx(run.metrics['iae'])
+    table = run.format_table()
+    assert table.count('\n') == 2 + len(run.steps) and 'load 8 → 14 N*m' in table
+    from cvt_ros.scenario.plot import plot_run
+    png = plot_run(run, str(tmp_path / 'run.png'))
+    assert open(png, 'rb').read(8) == b'\x89PNG\r\n\x1a\n'
+
+
+def test_mcap_is_read_back_by_the_analysis(load_step_run, tmp_path):
+    run = load_step_run
+    count, error = write_mcap(run, tmp_path / 'run.mcap')
+    assert error is None and count > 2 * len(run.t)
+    from cvt_ros.analysis import load
+    traces, info = load(str(tmp_path / 'run.mcap'))
+    tr = traces[0]
+    assert np.allclose(tr.t, run.t, rtol=0, atol=0.6e-9)       # stamps in whole ns
+    assert np.array_equal(tr.omega[:, 3], run.column('omega4'))
+    loads = [c for c in tr.commands if c.key == 'load_torque_cmd']
+    assert [(c.t, c.value) for c in loads] == [(4.0, 14.0), (10.0, 8.0)]
+    assert len(tr.switch_t) == len(run.switches)
+    assert tr.parameters['load.torque'] == 8.0
+
+
+class Boom:
+    def __init__(self, at, answer=None):
+        self.at, self.answer = at, answer
+
+    def __call__(self, m):
+        if m.t >= self.at:
+            if self.answer is None:
+                raise ZeroDivisionError('gain scheduling table empty')
+            return self.answer
+        return 0.04
+
+
+@pytest.mark.parametrize('controller, cause', [
+    (Boom(1.0), 'raised ZeroDivisionError'),
+    (Boom(1.0, float('nan')), 'not a finite crank length'),
+    (Boom(1.0, 'long'), 'not a crank length'),
+])
+def test_a_bad_controller_stops_the_run_and_keeps_what_ran(controller, cause, tmp_path):
+    sc = load_scenario('conveyor_load_step', {'duration': 3.0})
+    run = run_scenario(sc, controller)
+    assert not run.ok and cause in run.error and 't = 1.000000 s' in run.error
+    assert run.t[-1] == pytest.approx(1.0) and len(run.t) == 1001
+    assert math.isfinite(run.metrics['iae'])               # metrics up to that moment
+    count, error = write_mcap(run, tmp_path / 'part.mcap')
+    assert error is None and count > 1000
+
+
+def test_commands_outside_the_limits_are_clamped_and_counted():
+    sc = load_scenario('conveyor_load_step', {'duration': 1.0,
+                                              'crank_limits': {'max': 0.05, 'rate': 0.01}})
+    run = run_scenario(sc, lambda m: 0.08)
+    assert run.ok and run.clamped == 1000
+    assert np.nanmax(run.commands) <= 0.05 + 1e-15
+    assert np.all(np.diff(run.held_commands()[1:]) <= 0.01 * 1e-3 + 1e-15)
+
+
+def test_seeded_sensor_noise_is_reproducible_and_changes_with_the_seed():
+    sensors = {'noise': {'position': 2e-3}, 'counts_per_turn': 4096, 'delay': 0.002}
+    runs = [run_scenario(load_scenario('conveyor_load_step', {'duration': 2.0, 'seed': s,
+                                                              'sensors': sensors}))
+            for s in (7, 7, 8)]
+    assert np.array_equal(runs[0].samples, runs[1].samples)
+    assert not np.array_equal(runs[0].commands, runs[2].commands, equal_nan=True)
+
+
+def test_controller_by_module_and_factory(tmp_path, monkeypatch):
+    (tmp_path / 'my_ctrl.py').write_text(
+        'def make(scenario):\n'
+        '    return lambda m: 0.045\n'
+        'def bare():\n'
+        '    return lambda m: None\n'
+        'broken = 3\n')
+    monkeypatch.syspath_prepend(str(tmp_path))
+    sc = load_scenario('conveyor_load_step', {'duration': 0.5})
+    assert run_scenario(sc, 'my_ctrl:make').commands[0] == pytest.approx(0.04 + 1e-5)
+    assert np.all(np.isnan(run_scenario(sc, 'my_ctrl:bare').commands))
+    for spec, why in (('my_ctrl', 'MODULE:FACTORY'), ('no_such_mod:f', 'cannot import'),
+                      ('my_ctrl:nope', 'has no nope'), ('my_ctrl:broken', 'raised')):
+        with pytest.raises(HarnessError, match=why):
+            run_scenario(sc, spec)
+
+
+def test_command_line(tmp_path):
+    out = tmp_path / 'm.json'
+    cmd = [sys.executable, '-m', 'cvt_ros', 'scenario', 'run', 'conveyor_load_step',
+           '--duration', '1', '--json', str(out), '--quiet']
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert json.loads(out.read_text())['metrics']['switches_per_second'] > 0
+    again = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert again.returncode == 2 and 'exists' in again.stderr
+    bad = subprocess.run(cmd[:4] + [str(tmp_path / 'none.yaml')], capture_output=True,
+                         text=True, timeout=300)
+    assert bad.returncode == 2 and 'none.yaml' in bad.stderr
