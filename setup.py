@@ -25,7 +25,7 @@ setup(
     tests_require=['pytest'],
     entry_points={
         'console_scripts': [
-            'cvt-sim = cvt_ros.tools.cli:main',
+            'cvt-sim = cvt_ros.cli:main',
             'cvt_node = cvt_ros.device.main:main',
         ],
     },

@@ -1,6 +1,6 @@
 """``python -m cvt_ros`` ≡ ``cvt-sim``."""
 import sys
 
-from .tools.cli import main
+from .cli import main
 
 sys.exit(main())

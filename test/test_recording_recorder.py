@@ -37,7 +37,7 @@ from cvt_ros.recording import (
 from cvt_ros.recording._cdr import cdr_size
 from cvt_ros.recording.recorder import METADATA_NAME, SimulationRecorder, write_run
 from cvt_ros.solver.output import COL
-from cvt_ros.tools.run import run_scene
+from cvt_ros.solver.offline import run_scene
 
 CLI = [sys.executable, '-m', 'cvt_ros']
 TYPES = {'/joint_states': 'sensor_msgs/msg/JointState', '/clutch_engaged': 'std_msgs/msg/Bool',
@@ -59,7 +59,7 @@ def _env():
 def paper_run(tmp_path_factory):
     """The paper scene, 0.6 s at 1 ms, recorded in-process: (path, result)."""
     path = tmp_path_factory.mktemp('rec') / 'paper.mcap'
-    sim, result = run_scene('paper', 0.6, sample_dt=1e-3, progress=False)
+    sim, result = run_scene('paper', 0.6, sample_dt=1e-3)
     count, error = write_run(path, sim, result, scene='paper')
     assert error is None and count > 1200
     return path, result
