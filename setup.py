@@ -27,6 +27,9 @@ setup(
         'console_scripts': [
             'cvt-sim = cvt_ros.cli:main',
             'cvt_node = cvt_ros.device.main:main',
+            'cvt_speed_controller = cvt_ros.control.node:main',
         ],
+        # the cvt_device fixture for users' controller tests (cvt_ros.testing)
+        'pytest11': ['cvt_ros = cvt_ros.testing.plugin'],
     },
 )

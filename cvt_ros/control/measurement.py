@@ -20,7 +20,7 @@ class Measurement(NamedTuple):
     velocity: tuple          # ω1..ω4 [rad/s]
     effort: tuple            # motor torque, clutch torque, shaft torque, load torque [N·m]
     crank_length: float      # the actuator's crank length a [m] (its state, not the command)
-    clutch_engaged: bool
+    clutch_engaged: bool     # the clutch transmits torque at the sample (effort[1] > 0)
     setpoint: float          # output speed set point ω4* [rad/s] of the scenario schedule
 
     @property

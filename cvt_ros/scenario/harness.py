@@ -26,7 +26,7 @@ from ..control.measurement import ControllerError
 from ..control.speed_pi import reference_controller
 from ..solver.output import COL, N_COLUMNS
 from ..solver.simulator import SimulationError
-from .plants import OfflinePlant
+from .plants import OfflinePlant, plant_values
 from .realism import ActuatorModel, SensorModel
 from .result import ScenarioRun
 
@@ -41,12 +41,6 @@ _A, _ENG = COL['crank_length'], COL['engaged']
 
 class HarnessError(RuntimeError):
     """The harness cannot start (unknown back end, a controller spec that does not load)."""
-
-
-def plant_values(scenario):
-    """The scene values every back end builds its device from: the scenario's scene with the load
-    schedule's initial value as the load torque."""
-    return dict(scenario.values, **{'load.torque': scenario.load.initial})
 
 
 def load_controller(spec, scenario):
@@ -97,7 +91,14 @@ def run_scenario(scenario, controller=None, backend='offline', progress=None, pl
     ``progress(done_s, total_s)`` is called about every 1 % of the run."""
     name = REFERENCE if controller is None else getattr(controller, '__qualname__', None) \
         or type(controller).__name__
-    if controller is None:
+    external = options.get('controller_cmd')
+    if external:
+        if scenario.sensors.enabled or scenario.actuator.enabled:
+            raise HarnessError(f"{scenario.path}: sensors/actuator models act between the device "
+                               f"and an in-process controller; an external controller "
+                               f"(--controller-cmd) reads the device's topics directly")
+        name, controller = external, _external
+    elif controller is None:
         controller = reference_controller(scenario)
     elif isinstance(controller, str):
         name = controller
@@ -108,6 +109,11 @@ def run_scenario(scenario, controller=None, backend='offline', progress=None, pl
         return _loop(scenario, controller, plant, str(name), progress)
     finally:
         plant.close()
+
+
+def _external(measurement):
+    """Stands in for a controller in another process: it commands the device itself."""
+    return None
 
 
 def _loop(scenario, controller, plant, controller_name, progress):
@@ -121,9 +127,9 @@ def _loop(scenario, controller, plant, controller_name, progress):
     commands = np.full(n + 1, np.nan)
     switches = []
     sensors = SensorModel(scenario.sensors, dt, scenario.seed)
-    wall0 = time.perf_counter()
-    row = plant.start()
+    row = plant.start()            # (a node process starts here: not in the wall time)
     rows[0] = row
+    wall0 = time.perf_counter()
     actuator = ActuatorModel(scenario.actuator, float(row[_A]))
     previous = float(row[_A])      # last command after the limiter [m], and its period
     k_previous = -1                # (the start counts as a command one period before)
@@ -140,7 +146,7 @@ def _loop(scenario, controller, plant, controller_name, progress):
                 plant.set_load_torque(float(load_now))
             r = row.tolist()
             m = sensors.observe(r[0], (r[1], r[2], r[3], r[4]), (r[5], r[6], r[7], r[8]),
-                                (r[14], r[11], r[15], r[13]), r[12], r[9] > 0.5, setpoint[k])
+                                (r[14], r[11], r[15], r[13]), r[12], r[11] > 0.0, setpoint[k])
             try:
                 a = controller(m)
             except Exception as exc:   # noqa: BLE001 — the user's code: report, keep the run
@@ -178,7 +184,10 @@ def _loop(scenario, controller, plant, controller_name, progress):
     except KeyboardInterrupt:
         error = f"interrupted at t = {k * dt:.6f} s (period {k})"
     wall = time.perf_counter() - wall0
-    done = k if error is None else k
+    for i, value in getattr(plant, 'observed_commands', ()):   # an external controller's
+        if i <= k:
+            commands[i] = value
+    done = k
     return ScenarioRun(scenario=scenario, backend=plant.name, controller=controller_name,
                        samples=rows[:done + 1], setpoint=setpoint[:done + 1],
                        load=load[:done + 1], commands=commands[:done + 1], switches=switches,

@@ -14,6 +14,12 @@ why the two give bit-identical traces.
 from ..solver.fidelity import make_simulator
 
 
+def plant_values(scenario):
+    """The scene values every back end builds its device from: the scenario's scene with the load
+    schedule's initial value as the load torque."""
+    return dict(scenario.values, **{'load.torque': scenario.load.initial})
+
+
 class OfflinePlant:
     """The core's Simulator, no device around it (``--backend offline``)."""
     name = 'offline'
