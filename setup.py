@@ -14,6 +14,7 @@ setup(
         ('share/' + package_name, ['package.xml']),
         ('share/' + package_name + '/config/scenes', glob('config/scenes/*.yaml')),
         ('share/' + package_name + '/config/scenarios', glob('config/scenarios/*.yaml')),
+        ('share/' + package_name + '/config/foxglove', glob('config/foxglove/*.json')),
         ('share/' + package_name + '/launch', glob('launch/*.py')),
     ],
     install_requires=['setuptools', 'numpy', 'scipy', 'PyYAML'],
@@ -28,6 +29,7 @@ setup(
             'cvt-sim = cvt_ros.cli:main',
             'cvt_node = cvt_ros.device.main:main',
             'cvt_speed_controller = cvt_ros.control.node:main',
+            'cvt_linkage_markers = cvt_ros.control.markers:main',
         ],
         # the cvt_device fixture for users' controller tests (cvt_ros.testing)
         'pytest11': ['cvt_ros = cvt_ros.testing.plugin'],
