@@ -117,7 +117,8 @@ def _window(trace, tm, t_start, t_end, y, r_mid, ref_t, ref, a, tc, ev, t_e):
     m['iae'] = float(np.sum(np.abs(err) * period))
     m['max_deviation'] = float(np.max(np.abs(err)))
     # the set point in force at the end of the window (a step at t_e belongs to the next one)
-    last = max(int(np.searchsorted(ref_t, t_e, side='left')) - 1, 0)
+    half = 0.5 * (ref_t[1] - ref_t[0]) if len(ref_t) > 1 else 0.0
+    last = max(int(np.searchsorted(ref_t, t_e - half, side='right')) - 1, 0)
     rf = float(ref[last]) if t_e < ref_t[-1] else float(ref[-1])
     n_ss = max(MIN_STEADY_CYCLES, int(math.ceil(STEADY_FRACTION * len(idx))))
     if len(idx) >= n_ss:

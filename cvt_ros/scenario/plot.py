@@ -46,7 +46,9 @@ def plot_run(run, path):
     ax.plot(t, run.column('crank_length') * 1e3, color='C2', lw=1.0,
             label='crank length (actuator)')
     lim = run.scenario.crank_limits
-    ax.axhline(lim.max * 1e3, color='0.6', ls=':', lw=0.8)
+    top = np.nanmax(run.column('crank_length'))
+    if top > 0.8 * lim.max:     # the limit only when the crank comes near it
+        ax.axhline(lim.max * 1e3, color='0.6', ls=':', lw=0.8, label='crank limit')
     ax.set_ylabel('crank length [mm]')
     ax.legend(loc='best', fontsize=8)
 

@@ -93,14 +93,19 @@ class ScenarioRun:
         """Per-step metrics (list of dicts; :mod:`cvt_ros.analysis.stepinfo`)."""
         if len(self.t) < 3:
             return []
-        return step_metrics(self.trace(), self.t, self.setpoint, self.events())
+        return step_metrics(self.trace(), self._grid(), self.setpoint, self.events())
+
+    def _grid(self):
+        """k·period: the times the schedules were sampled at (the sample stamps accumulate
+        rounding, and a change at t = 2 s belongs to period 2000, not to a stamp 1.9999…)."""
+        return np.arange(len(self.setpoint)) * self.scenario.control_period
 
     @cached_property
     def metrics(self):
         """Run-level metrics by name (rise_time, overshoot, settling_time, ...)."""
         if len(self.t) < 3:
             return dict.fromkeys(METRICS, math.nan)
-        return summarize_steps(self.steps, self.trace(), self.t, self.setpoint)
+        return summarize_steps(self.steps, self.trace(), self._grid(), self.setpoint)
 
     # ------------------------------------------------------------------ outputs
     def to_dict(self):
