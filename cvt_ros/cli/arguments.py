@@ -36,3 +36,10 @@ def positive_seconds(largest, smallest=1e-9):
         return value
     parse.__name__ = 'seconds'
     return parse
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with one error line (and where to look) instead of a usage block and a line."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")

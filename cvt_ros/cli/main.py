@@ -14,6 +14,7 @@ from ..recording.errors import RecordingError
 from ..scene import SceneError, available_scenes
 from ..solver.simulator import SimulationError
 from . import demo, run
+from .arguments import Parser
 
 DESCRIPTION = """\
 Simulate a mechanical pulse continuously variable transmission (motor → crank-rocker linkage →
@@ -38,7 +39,7 @@ PASS_THROUGH = ('node', 'bench')
 
 
 def build_parser():
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog='cvt-sim', description=DESCRIPTION,
         epilog=EPILOG.format(scenes=', '.join(available_scenes())),
         formatter_class=argparse.RawDescriptionHelpFormatter)
