@@ -33,8 +33,9 @@ from typing import Any
 from .solver.output import COL
 
 __all__ = [
-    'CLOCK', 'CLUTCH_ENGAGED', 'CRANK_LENGTH_CMD', 'DIAGNOSTICS', 'JOINTS', 'JOINT_STATES',
-    'LOAD_TORQUE_CMD', 'QOS', 'TOPICS', 'TopicSpec', 'JointStateValues',
+    'ACTUATOR_JOINT', 'CLOCK', 'CLUTCH_ENGAGED', 'CRANK_LENGTH_CMD', 'DEVICE_JOINTS', 'DIAGNOSTICS',
+    'JOINTS', 'JOINT_STATES', 'JointStateEncoder', 'LOAD_TORQUE_CMD', 'QOS', 'STATE', 'STATE_QOS',
+    'TOPICS', 'TopicSpec', 'JointStateValues', 'command_subscription_qos', 'state_qos',
     'POSITION_COLUMNS', 'VELOCITY_COLUMNS', 'EFFORT_COLUMNS',
     'bool_cdr', 'clock_cdr', 'clock_msg', 'clock_qos', 'clutch_msg', 'clutch_qos',
     'command_msg', 'command_qos', 'decode_joint_state', 'decode_joint_state_cdr',
@@ -46,6 +47,13 @@ __all__ = [
 # ---------------------------------------------------------------------------------- names
 #: Joint names of joint_states, J1..J4 (the node may prefix them: parameter joint_prefix).
 JOINTS = ('crank', 'rocker', 'clutch_output', 'output_shaft')
+#: The crank-length actuator as a prismatic joint, after J1..J4 in the node's joint_states:
+#: position = actual (rate-limited) crank length [m], velocity = its rate [m/s], effort = NaN (the
+#: actuator's force is not modelled). What ros2_control's joint_state_broadcaster publishes and
+#: topic_based_ros2_control reads: a joint by name, with position and velocity.
+ACTUATOR_JOINT = 'crank_length'
+#: All joints the node publishes, in order.
+DEVICE_JOINTS = JOINTS + (ACTUATOR_JOINT,)
 #: Sample-row columns behind position, velocity and effort, joint by joint.
 POSITION_COLUMNS = ('phi1', 'phi2', 'phi3', 'phi4')
 VELOCITY_COLUMNS = ('omega1', 'omega2', 'omega3', 'omega4')
@@ -64,6 +72,12 @@ CLOCK = '/clock'
 DIAGNOSTICS = '/diagnostics'
 CRANK_LENGTH_CMD = 'crank_length_cmd'
 LOAD_TORQUE_CMD = 'load_torque_cmd'
+#: The latest sample, latched (transient local, keep last 1): a controller that starts after the
+#: node (or after a reset) gets the present sample at once. Same content as joint_states; not in
+#: TOPICS (recordings carry joint_states, not this copy).
+STATE = 'state'
+STATE_QOS = {'history': 'keep_last', 'depth': 1, 'reliability': 'reliable',
+             'durability': 'transient_local'}
 
 _INFINITE = {'sec': 9223372036, 'nsec': 854775807}
 
@@ -134,9 +148,12 @@ def resolved_topics(namespace: str = '/') -> dict[str, str]:
 # ---------------------------------------------------------------------------------- QoS
 def qos_profile(key: str):
     """The rclpy ``QoSProfile`` of topic ``key`` (imports rclpy)."""
+    return _profile(QOS[key])
+
+
+def _profile(q: Mapping[str, Any]):
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-    q = QOS[key]
     return QoSProfile(
         history={'keep_last': HistoryPolicy.KEEP_LAST,
                  'keep_all': HistoryPolicy.KEEP_ALL}[q['history']],
@@ -168,8 +185,21 @@ def diagnostics_qos():
 
 
 def command_qos():
-    """crank_length_cmd, load_torque_cmd: reliable, keep last 10, volatile."""
+    """crank_length_cmd, load_torque_cmd as publishers offer them: reliable, keep last 10."""
     return qos_profile('crank_length_cmd')
+
+
+def command_subscription_qos():
+    """The node's command subscriptions: reliable, keep all, volatile. The reader keeps every
+    command until the node takes it (no silent loss when commands come faster than periods);
+    history is not part of QoS matching, so any reliable publisher matches."""
+    return _profile({'history': 'keep_all', 'depth': 0, 'reliability': 'reliable',
+                     'durability': 'volatile'})
+
+
+def state_qos():
+    """state: reliable, keep last 1, transient local (the latest sample, latched)."""
+    return _profile(STATE_QOS)
 
 
 # ---------------------------------------------------------------------------------- time
@@ -248,8 +278,9 @@ def _string(text: str, offset: int) -> bytes:
     return b'\x00' * _pad(offset, 4) + struct.pack('<I', len(data)) + data
 
 
-class _JointStateEncoder:
-    """JointState CDR for fixed joint names and frame_id: a constant layout, one pack per row."""
+class JointStateEncoder:
+    """JointState CDR for fixed joint names and frame_id: a constant layout, one pack per row
+    (the same bytes as rclpy's serialize_message, zero padding)."""
 
     def __init__(self, names: Sequence[str], frame_id: str = ''):
         body = bytearray(8)  # stamp, packed per message
@@ -275,12 +306,13 @@ class _JointStateEncoder:
         self._struct = struct.Struct(fmt)
 
     def encode(self, sec: int, nanosec: int, values: Sequence[float]) -> bytes:
-        """``values``: the 12 position, velocity and effort values, joint by joint."""
-        return _ENCAPSULATION + self._struct.pack(sec, nanosec, self._prefix, 4, *values[0:4],
-                                                  4, *values[4:8], 4, *values[8:12])
+        """``values``: the position, velocity and effort values (n each), joint by joint."""
+        n = self.n
+        return _ENCAPSULATION + self._struct.pack(sec, nanosec, self._prefix, n, *values[0:n],
+                                                  n, *values[n:2 * n], n, *values[2 * n:3 * n])
 
 
-_ENCODERS: dict[tuple[tuple[str, ...], str], _JointStateEncoder] = {}
+_ENCODERS: dict[tuple[tuple[str, ...], str], JointStateEncoder] = {}
 
 
 def joint_state_cdr(row: Sequence[float], stamp: int | None = None,
@@ -291,7 +323,7 @@ def joint_state_cdr(row: Sequence[float], stamp: int | None = None,
     if encoder is None:
         if len(names) != 4:
             raise ValueError(f'joint_states has 4 joints, got names {list(names)!r}')
-        encoder = _ENCODERS[key] = _JointStateEncoder(key[0], frame_id)
+        encoder = _ENCODERS[key] = JointStateEncoder(key[0], frame_id)
     ns = stamp_ns(row[_T]) if stamp is None else int(stamp)
     sec, nanosec = divmod(ns, 1_000_000_000)
     if hasattr(row, 'take'):  # a numpy row: one gather instead of 12 scalar reads

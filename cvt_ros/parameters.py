@@ -226,8 +226,12 @@ NODE_PARAMETERS = (
                   '0 = normal scheduling); without the permission it runs normally, with a '
                   'warning', low=0.0, high=99.0),
     _spec('steps_per_command', 0, '-',
-                  'lockstep mode: control periods each command message advances (0 = only ~/step)',
+                  'lockstep mode: control periods each crank_length_cmd message advances (0 = '
+                  'only ~/step; load_torque_cmd never advances time)',
                   low=0.0, high=1e9),
+    _spec('step_periods', 1, '-',
+                  'control periods one ~/step call advances (lockstep or paused)',
+                  low=1.0, high=1e9),
     _spec('publish_clock', True, '-',
                   'publish /clock (the node is the time source); turn off for all but one '
                   'transmission when several share a ROS graph',

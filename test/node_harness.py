@@ -20,6 +20,7 @@ import rclpy
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters, SetParameters
 from rclpy.context import Context
+from rclpy.duration import Duration
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -268,6 +269,8 @@ def _flood_main(topic, rate, seconds, *values):
             time.sleep(ahead * 1e-9)
         pub.publish(cycle[i % len(cycle)])
     elapsed = (time.monotonic_ns() - t0) * 1e-9
+    # a reliable writer's history dies with its process: deliver it before leaving
+    pub.wait_for_all_acked(Duration(seconds=30))
     print(f"{n} {elapsed:.3f}", flush=True)
     node.destroy_node()
     rclpy.try_shutdown()

@@ -27,7 +27,7 @@ def test_signal_shuts_down_cleanly(sig):
         probe = Probe(domain)
         try:
             joints = probe.subscribe(JointState, 'joint_states')
-            assert wait_for(lambda: len(joints) > 50, 30.0), proc.output()
+            assert wait_for(lambda: len(joints) > 50, 180.0), proc.output()
         finally:
             probe.close()
         code, seconds = proc.stop(sig, timeout=10.0)
@@ -45,7 +45,7 @@ def test_scene_file_sets_the_parameters_as_offline():
     with NodeProcess(domain, ['--params-file', path, '-p', 'time_mode:=lockstep']) as proc:
         probe = Probe(domain)
         try:
-            assert wait_for(lambda: probe.node.count_publishers('/joint_states') > 0, 30.0), \
+            assert wait_for(lambda: probe.node.count_publishers('/joint_states') > 0, 180.0), \
                 proc.output()
             expected = load_scene(path, {'solver.method': 'rk4'})
             names = ['linkage.crank_length', 'inertia.output', 'shaft.stiffness',
@@ -67,7 +67,7 @@ def test_scene_with_infinite_stiffness_and_integers(tmp_path):
     with NodeProcess(domain, ['--params-file', str(scene), '-p', 'time_mode:=lockstep']) as proc:
         probe = Probe(domain)
         try:
-            assert wait_for(lambda: probe.node.count_publishers('/joint_states') > 0, 30.0), \
+            assert wait_for(lambda: probe.node.count_publishers('/joint_states') > 0, 180.0), \
                 proc.output()
             got = probe.get_parameters('/cvt_sim', ['shaft.stiffness', 'load.torque'])
             assert got == {'shaft.stiffness': float('inf'), 'load.torque': 6.0}
@@ -79,7 +79,17 @@ def test_scene_with_infinite_stiffness_and_integers(tmp_path):
 def test_invalid_scene_is_refused_at_start():
     domain = domain_id()
     with NodeProcess(domain, ['-p', 'linkage.crank_length:=0.15']) as proc:
-        assert wait_for(lambda: not proc.alive(), 30.0)
+        assert wait_for(lambda: not proc.alive(), 180.0)
         output = proc.output()
         assert proc.proc.returncode == 2, output
     assert 'linkage.crank_length' in output and '0.15' in output and '0.1' in output, output
+
+
+def test_unknown_parameter_is_refused_at_start_naming_the_closest():
+    domain = domain_id()
+    with NodeProcess(domain, ['-p', 'time_mod:=fast']) as proc:
+        assert wait_for(lambda: not proc.alive(), 180.0)
+        output = proc.output()
+        assert proc.proc.returncode == 2, output
+    assert 'unknown parameter time_mod (did you mean time_mode?)' in output, output
+    assert 'Traceback' not in output, output

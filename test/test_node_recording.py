@@ -23,7 +23,7 @@ def run_node(tmp_path, stop_signal, commands=True, linger=0.0):
         probe = Probe(domain)
         try:
             joints = probe.subscribe(JointState, 'joint_states')
-            assert wait_for(lambda: len(joints) > 200, 60.0), proc.output()
+            assert wait_for(lambda: len(joints) > 200, 180.0), proc.output()
             if commands:
                 crank = probe.publisher(Float64, 'crank_length_cmd')
                 assert wait_for(lambda: crank.get_subscription_count() > 0, 10.0)
@@ -63,7 +63,8 @@ def test_sigint_leaves_a_complete_bag_that_independent_readers_accept(tmp_path):
             msg = reader.deserialize(raw, conn.msgtype)
             stamps.append(msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec)
             assert log_ns == stamps[-1]   # log time = simulation time of the sample
-            assert list(msg.name) == ['crank', 'rocker', 'clutch_output', 'output_shaft']
+            assert list(msg.name) == ['crank', 'rocker', 'clutch_output', 'output_shaft',
+                                      'crank_length']
     assert all(b - a == 1_000_000 for a, b in zip(stamps, stamps[1:], strict=False))
     switches = [m for m in read_messages(path, ['/clutch_engaged'])]
     assert len(switches) > 10

@@ -247,11 +247,12 @@ class Device:
 
     # ------------------------------------------------------------------ reporting
     def state_text(self):
-        """One line: time, crank length (actual and target), load torque in force, clutch."""
+        """One line: time, crank length (actual and target), the load torque in force (the
+        last load_torque_cmd, else load.torque), clutch state."""
         sim = self.sim
         return (f"t={sim.t:.9f} s crank_length={float(sim.crank_length):.6g} m "
                 f"(target {sim.crank_length_target:.6g} m) "
-                f"load_torque={sim.values['load.torque']:.6g} N*m "
+                f"load_torque={sim.load_torque:.6g} N*m "
                 f"engaged={str(bool(sim.engaged)).lower()}")
 
     def snapshot(self, last_row):

@@ -27,6 +27,7 @@ class Stats:
     commands: int = 0
     refused: int = 0
     dropped: int = 0
+    lost: int = 0
     resets: int = 0
     jitter_ns: Ring = field(default_factory=Ring)
 
@@ -50,11 +51,12 @@ class Reporter:
         now = time.monotonic_ns()
         cur = {'wall_ns': now, 't': snap['t'], 'samples': stats.samples,
                'switch_count': snap['switch_count'], 'missed': stats.missed,
-               'resyncs': stats.resyncs, 'refused': stats.refused, 'phi1': snap['phi1'],
+               'resyncs': stats.resyncs, 'refused': stats.refused, 'lost': stats.lost,
+               'dropped': stats.dropped, 'phi1': snap['phi1'],
                'phi4': snap['phi4'], 'resets': snap['resets'], 'snap_wall_ns': snap['wall_ns']}
         prev, self.previous = self.previous, cur
         rtf = rate = switch_rate = ratio = math.nan
-        window_missed = window_refused = window_resyncs = 0
+        window_missed = window_refused = window_resyncs = window_lost = 0
         if prev is not None and prev['resets'] == cur['resets']:
             wall = (now - prev['wall_ns']) * 1e-9
             snap_wall = (cur['snap_wall_ns'] - prev['snap_wall_ns']) * 1e-9
@@ -71,6 +73,7 @@ class Reporter:
             window_missed = cur['missed'] - prev['missed']
             window_refused = cur['refused'] - prev['refused']
             window_resyncs = cur['resyncs'] - prev['resyncs']
+            window_lost = cur['lost'] + cur['dropped'] - prev['lost'] - prev['dropped']
         step = step_ns.percentiles() or [math.nan] * 3
         jitter = stats.jitter_ns.percentiles() or [math.nan] * 3
         mode, state, fault = settings['mode'], settings['state'], settings['fault']
@@ -110,6 +113,8 @@ class Reporter:
             ('commands_received', str(stats.commands)),
             ('commands_refused', str(stats.refused)),
             ('commands_dropped', str(stats.dropped)),
+            ('commands_lost', str(stats.lost)),
+            ('realtime_policy', settings.get('policy', '')),
             ('fault', fault or ''),
         ]
         if fault:
@@ -118,6 +123,8 @@ class Reporter:
             level = WARN
             message = (f"behind schedule: {window_missed} missed deadlines, {window_resyncs} "
                        f"resyncs in the last window")
+        elif window_lost:
+            level, message = WARN, f"{window_lost} commands lost or dropped"
         elif window_refused:
             level, message = WARN, f"{window_refused} commands refused"
         else:

@@ -8,10 +8,13 @@ period, a switch, the present state; take commands), and tests drive it with a p
   drift; late samples go out back to back until the schedule is met again; more than
   LAG_LIMIT_NS behind, the backlog is given up and the schedule re-anchored (a resync).
 * ``fast``: as fast as the core and the publishing allow, FAST_BATCH periods per pass.
-* ``lockstep``: the simulation advances only on ``~/step`` or by ``steps_per_command``.
+* ``lockstep``: the simulation advances only on ``~/step`` (``step_periods`` each) or by
+  ``steps_per_command`` per crank-length command; load commands never advance time.
 
-Callers on other threads (the executor) only check and ``request()``; the loop thread applies the
-requests at the start of the next physics step, in arrival order.
+Callers on other threads (the executor) check and ``request()``; the loop thread applies the
+requests at the start of the next physics step, in arrival order. While the simulation is held
+(lockstep, paused) the executor thread advances it itself (``lockstep_command``, ``step``): one
+wake-up per period, no hand-over between threads; ``lock`` keeps the two threads apart.
 """
 import collections
 import ctypes
@@ -37,6 +40,9 @@ SERVICE_TIMEOUT_S = 5.0        # a service waits this long for the loop to act
 QUEUE_LIMIT = 100_000          # queued requests; beyond this commands are dropped (and counted)
 FAST_BATCH = 20                # fast mode: control periods per pass of the loop (less overhead)
 COMMANDS = ('crank', 'load', 'noop')
+#: What realtime mode does when it cannot keep up (reported in /diagnostics, docs/node.md).
+REALTIME_POLICY = ('catch up: late samples go out back to back with their own stamps; more than '
+                   '0.5 s behind: re-anchor, simulation time slips (resyncs, slipped_s)')
 
 
 def reduce_timer_slack():
@@ -97,6 +103,8 @@ class RunLoop:
         self.mode = settings['time_mode']
         self.rtf = settings['real_time_factor']
         self.steps_per_command = int(settings['steps_per_command'])
+        self.step_periods = int(settings.get('step_periods', 1))
+        self.lock = threading.Lock()   # held while a thread works on the device
         self.priority = int(settings['realtime_priority'])
         self.stats = Stats()
         self.snapshot = {}
@@ -147,9 +155,58 @@ class RunLoop:
         self.wake.set()
 
     # ------------------------------------------------------------------ requests
-    def grant(self):
-        """Control periods a command message advances now (lockstep with steps_per_command)."""
-        return self.steps_per_command if self.mode == 'lockstep' else 0
+    def grant(self, kind='crank'):
+        """Control periods a command message advances now: a crank-length command in lockstep
+        with steps_per_command; a load (disturbance) command never advances time."""
+        return self.steps_per_command if self.mode == 'lockstep' and kind != 'load' else 0
+
+    def held(self):
+        """The simulation is held (lockstep or paused): the executor may advance it."""
+        return self.mode == 'lockstep' or self.paused
+
+    def lockstep_command(self, kind, value, grant):
+        """Executor thread, held simulation: apply what was queued, then this command (None:
+        a refused one, the last valid command stays), then advance ``grant`` periods."""
+        with self.lock:
+            self._drain()
+            if kind is not None:
+                self._apply((kind, value, grant))
+            if self.paused:
+                return   # ~/pause suspends steps_per_command: applied, not stepped
+            self._advance_periods(grant)
+
+    def step(self, n):
+        """~/step while held (executor thread): advance ``n`` periods now; (success, text)."""
+        with self.lock:
+            self._drain()
+            if self.device.fault:
+                return False, f"simulation fault: {self.device.fault}; call ~/reset"
+            if not self._advance_periods(n):
+                return False, f"simulation fault: {self.device.fault}; call ~/reset"
+            return True, self.device.state_text()
+
+    def _advance_periods(self, n):
+        for _ in range(n):
+            if self.device.fault or self.stopping.is_set():
+                return False
+            period = self._advance()
+            if period is None:
+                return False
+            self._publish(period)
+        return True
+
+    def _drain(self):
+        """Apply everything queued, in order (the caller holds the lock)."""
+        while not self.stopping.is_set():
+            entry = self._pop()
+            if entry is None:
+                return
+            if entry[0] in COMMANDS:
+                self._apply(entry)
+                if entry[2] and self.mode == 'lockstep' and not self.paused:
+                    self._advance_periods(entry[2])
+            else:
+                self._apply(entry)
 
     def request(self, entry):
         """Queue work for the loop thread; consecutive commands of one kind without steps to
@@ -220,20 +277,23 @@ class RunLoop:
             self._takes = takes
             self.port.commands_to_loop(takes)
         if self.paused or self.mode == 'lockstep' or self.device.fault:
-            self._flush_ahead()
-            if not self._serve_held():
+            with self.lock:
+                self._flush_ahead()
+                did = self._serve_held()
+            if not did:
                 self.wake.wait(IDLE_WAIT_S)
             self._resync = True
         elif self.mode == 'fast':
-            self._flush_ahead()
-            for _ in range(FAST_BATCH):
-                self._serve_running()
-                if not self.running():
-                    break
-                period = self._advance()
-                if period is None:
-                    break
-                self._publish(period)
+            with self.lock:
+                self._flush_ahead()
+                for _ in range(FAST_BATCH):
+                    self._serve_running()
+                    if not self.running():
+                        break
+                    period = self._advance()
+                    if period is None:
+                        break
+                    self._publish(period)
             self._resync = True
         else:
             self._realtime_tick()
@@ -270,13 +330,14 @@ class RunLoop:
 
     def _realtime_tick(self):
         """Publish the period computed ahead at its wall-clock moments, then compute the next."""
-        self._serve_running()
-        if not self.running():
-            return
-        if self._ahead is None:
-            self._ahead = self._advance()
-            if self._ahead is None:
+        with self.lock:
+            self._serve_running()
+            if not self.running():
                 return
+            if self._ahead is None:
+                self._ahead = self._advance()
+                if self._ahead is None:
+                    return
         period = self._ahead
         if self._resync:
             self._resync = False
@@ -348,35 +409,10 @@ class RunLoop:
             self._apply(entry)
 
     def _serve_held(self):
-        """Paused / lockstep: apply queued work in order, advancing where it says so."""
-        did = False
-        while not self.stopping.is_set():
-            entry = self._pop()
-            if entry is None:
-                break
-            did = True
-            kind = entry[0]
-            if kind == 'step':
-                waiter = entry[1]
-                period = None if self.device.fault else self._advance()
-                if period is None:
-                    waiter.finish(False, f"simulation fault: {self.device.fault}; call ~/reset")
-                    continue
-                self._publish(period)
-                waiter.finish(True, self.device.state_text())
-            elif kind in COMMANDS:
-                self._apply(entry)
-                grant = entry[2]
-                if grant and self.mode == 'lockstep' and not self.paused:
-                    for _ in range(grant):
-                        if self.device.fault or self.stopping.is_set():
-                            break
-                        period = self._advance()
-                        if period is None:
-                            break
-                        self._publish(period)
-            else:
-                self._apply(entry)
+        """Paused / lockstep (loop thread, lock held): apply queued work in order, advancing
+        where a command says so; True if there was any."""
+        did = bool(self._queue)
+        self._drain()
         return did
 
     def _apply(self, entry):
@@ -411,8 +447,6 @@ class RunLoop:
             self._resync = True
             waiter.finish(True, f"{'paused' if self.paused else 'running'}: "
                                 f"{device.state_text()}")
-        elif kind == 'step':
-            entry[1].finish(False, 'the simulation is running; call ~/pause first')
 
     def _reset(self):
         self._ahead = None

@@ -2,18 +2,20 @@
 services, QoS). The physics is the Device (``core.py``), the time modes the RunLoop (``loop.py``),
 the health report ``diagnostics.py``; the full interface is in docs/node.md.
 
-* subscriptions (std_msgs/Float64, reliable): ``crank_length_cmd`` [m], ``load_torque_cmd`` [N·m]
-* publications: ``joint_states`` (sensor_msgs/JointState), ``clutch_engaged`` (std_msgs/Bool,
-  transient local), ``/clock`` (rosgraph_msgs/Clock), ``/diagnostics`` (~1 Hz)
-* services: ``~/reset`` (Trigger), ``~/pause`` (SetBool), ``~/step`` (Trigger)
+* subscriptions (std_msgs/Float64, reliable, keep all): ``crank_length_cmd`` [m],
+  ``load_torque_cmd`` [N·m]
+* publications: ``joint_states`` (sensor_msgs/JointState: J1..J4 and the actuator joint
+  ``crank_length``), ``state`` (the same sample, latched: transient local, keep last 1),
+  ``clutch_engaged`` (std_msgs/Bool, latched), ``/clock``, ``/diagnostics`` (~1 Hz)
+* services: ``~/reset`` (Trigger), ``~/pause`` (SetBool), ``~/step`` (Trigger, ``step_periods``)
 * parameters: every parameter of ``cvt_ros.parameters.SPECS`` under its dotted name
 
 Threads: the executor runs the callbacks, which only check and queue; the loop thread owns the
 Device and publishes.
 """
-import array
 import difflib
 import gc
+import math
 import threading
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -34,10 +36,10 @@ from ..parameters import ParameterError
 from ..physics.linkage import GrashofError
 from ..scene import NODE_NAME, SceneError, read_scene
 from ..solver.output import COL
-from .core import NODE_NAMES, PHYSICS_NAMES, CommandError, Device, physics_values
+from .core import NODE_NAMES, PHYSICS_NAMES, CommandError, Device
 from .descriptors import describe, ros_value
 from .diagnostics import Reporter
-from .loop import RunLoop
+from .loop import REALTIME_POLICY, RunLoop
 
 DEFAULT_SCENE = 'conveyor'
 # rk4 is the node's default solver: fixed sub-steps with events located inside the step, so every
@@ -47,10 +49,13 @@ TAKE_LIMIT = 1000              # command messages the loop takes per subscriptio
 # parameters rclpy or other layers declare themselves: not warned about as unknown overrides
 FOREIGN_PARAMETERS = ('use_sim_time', 'start_type_description_service')
 
-JOINTS = interface.JOINTS   # crank, rocker, clutch_output, output_shaft: J1..J4
-_POSITION = [COL[c] for c in interface.POSITION_COLUMNS]
-_VELOCITY = [COL[c] for c in interface.VELOCITY_COLUMNS]
-_EFFORT = [COL[c] for c in interface.EFFORT_COLUMNS]
+JOINTS = interface.DEVICE_JOINTS   # J1..J4 (crank ... output_shaft) and the actuator crank_length
+_A = COL['crank_length']
+# one gather per sample: position φ1..φ4, a; velocity ω1..ω4, (ȧ); effort (4 torques), (NaN)
+_FIELDS = ([COL[c] for c in interface.POSITION_COLUMNS] + [_A]
+           + [COL[c] for c in interface.VELOCITY_COLUMNS] + [_A]
+           + [COL[c] for c in interface.EFFORT_COLUMNS] + [_A])
+_RATE_SLOT, _FORCE_SLOT = 9, 14
 
 
 class _CommandGroup(CallbackGroup):
@@ -86,6 +91,7 @@ class CvtSimNode(Node):
     def __init__(self, base_scene=DEFAULT_SCENE, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
         values = self._scene_values(base_scene)
+        self._scene_name = '' if base_scene is None else str(base_scene)  # for recordings
         for name, spec in params_mod.SPECS.items():
             self.declare_parameter(name, ros_value(spec, values[name]), describe(spec),
                                    ignore_override=True)
@@ -104,13 +110,14 @@ class CvtSimNode(Node):
         self._reporter = Reporter()
         self._recorder = None
         self._record_lock = threading.Lock()
-        self._js = JointState()
-        self._js_names = None
-        self._clock_msg = ClockMsg()
+        self._encoder = interface.JointStateEncoder(self._joint_names)
+        self._last_seq = {}         # command topic -> last publication sequence number
         self._published_ns = 0      # simulation time of the last published sample [ns]
 
         self.joint_states_publisher = self.create_publisher(
             JointState, interface.JOINT_STATES, interface.joint_states_qos())
+        self.state_publisher = self.create_publisher(
+            JointState, interface.STATE, interface.state_qos())
         self.clutch_engaged_publisher = self.create_publisher(
             Bool, interface.CLUTCH_ENGAGED, interface.clutch_qos())
         self.clock_publisher = self.create_publisher(
@@ -120,10 +127,10 @@ class CvtSimNode(Node):
         self._command_group = _CommandGroup()
         self.crank_length_cmd_subscription = self.create_subscription(
             Float64, interface.CRANK_LENGTH_CMD, self.crank_length_cmd_callback,
-            interface.command_qos(), callback_group=self._command_group)
+            interface.command_subscription_qos(), callback_group=self._command_group)
         self.load_torque_cmd_subscription = self.create_subscription(
             Float64, interface.LOAD_TORQUE_CMD, self.load_torque_cmd_callback,
-            interface.command_qos(), callback_group=self._command_group)
+            interface.command_subscription_qos(), callback_group=self._command_group)
         self.reset_service = self.create_service(Trigger, '~/reset', self.reset_callback)
         self.pause_service = self.create_service(SetBool, '~/pause', self.pause_callback)
         self.step_service = self.create_service(Trigger, '~/step', self.step_callback)
@@ -173,17 +180,14 @@ class CvtSimNode(Node):
         # the node coerce integers to doubles (`torque: 10`) before declaring with that type.
         overrides = {name: p.value for name, p in getattr(self, '_parameter_overrides',
                                                            {}).items()}
-        unknown = []
-        for name, value in overrides.items():
+        for name, value in sorted(overrides.items()):
             if name in params_mod.SPECS:
                 raw[name] = value
             elif name not in FOREIGN_PARAMETERS and not name.startswith('qos_overrides.'):
-                unknown.append(name)
-        for name in sorted(unknown):
-            close = difflib.get_close_matches(name, params_mod.SPECS, n=1)
-            hint = f" (did you mean {close[0]}?)" if close else ''
-            self.get_logger().warning(
-                f"ignoring parameter {name}: cvt_sim has no such parameter{hint}")
+                # a typo must not run the wrong experiment: refused, as offline
+                close = difflib.get_close_matches(name, params_mod.SPECS, n=1)
+                hint = f" (did you mean {close[0]}?)" if close else ''
+                raise SceneError(f"unknown parameter {name}{hint}; `cvt-sim params` lists them")
         try:
             return params_mod.validate(raw)
         except (ParameterError, GrashofError) as exc:
@@ -245,12 +249,15 @@ class CvtSimNode(Node):
             device.dt = 1.0 / new['publish_rate']
         if 'steps_per_command' in node:
             loop.steps_per_command = int(new['steps_per_command'])
+        if 'step_periods' in node:
+            loop.step_periods = int(new['step_periods'])
         if {'time_mode', 'real_time_factor', 'publish_rate', 'realtime_priority'} & set(node):
             loop.retime(new['time_mode'], new['real_time_factor'], int(new['realtime_priority']))
         if 'publish_clock' in node:
             self._publish_clock = bool(new['publish_clock'])
         if 'joint_prefix' in node:
             self._joint_names = [new['joint_prefix'] + j for j in JOINTS]
+            self._encoder = interface.JointStateEncoder(self._joint_names)
         if 'record.path' in node:
             self._close_recorder()
             if new['record.path']:
@@ -260,35 +267,60 @@ class CvtSimNode(Node):
                                       'will not follow (set publish_clock true)')
 
     # ------------------------------------------------------------------ commands
-    def crank_length_cmd_callback(self, msg):
+    def crank_length_cmd_callback(self, msg, info):
         """A crank length [m]: accepted in [0, Grashof bound), else refused (last one stays)."""
-        self._command('crank', 'crank_length_cmd', msg, self.device.check_crank_length,
+        self._command('crank', 'crank_length_cmd', msg, info, self.device.check_crank_length,
                       f"{self._crank_target:g} m")
 
-    def load_torque_cmd_callback(self, msg):
+    def load_torque_cmd_callback(self, msg, info):
         """A load torque [N·m]: accepted when finite and |M| <= limits.load_torque."""
-        self._command('load', 'load_torque_cmd', msg, self.device.check_load_torque,
+        self._command('load', 'load_torque_cmd', msg, info, self.device.check_load_torque,
                       f"{self._load_command:g} N*m")
 
-    def _command(self, kind, topic, msg, check, keeping):
+    def _command(self, kind, topic, msg, info, check, keeping):
         value = msg.data
         loop = self.loop
         loop.stats.commands += 1
+        self._count_lost(topic, info)
         self._hand_to_recorder(self._topic[topic], msg, self._published_ns)
+        grant = loop.grant(kind)
         try:
             check(value)
         except CommandError as exc:
             loop.stats.refused += 1
-            grant = loop.grant()
-            if grant:   # the controller's cycle goes on with the last valid command
-                loop.request(('noop', None, grant))
             loop.warn(topic, f"{exc}; keeping the last valid command {keeping}", ' refused')
-            return
-        if kind == 'crank':
-            self._crank_target = value
+            kind = None   # the controller's cycle goes on with the last valid command
         else:
-            self._load_command = value
-        loop.request((kind, value, loop.grant()))
+            if kind == 'crank':
+                self._crank_target = value
+            else:
+                self._load_command = value
+        if grant and loop.held():
+            loop.lockstep_command(kind, value, grant)   # here, now: one wake-up per period
+        elif kind is not None:
+            loop.request((kind, value, grant))
+
+    def _count_lost(self, topic, info):
+        """Commands lost before they reached this node (a publisher overwrote its own unsent
+        history): gaps in the publisher's sequence numbers, counted while one publisher sends
+        (several interleave theirs), reported in /diagnostics (commands_lost) and warned."""
+        seq = info.get('publication_sequence_number') if info else None
+        if seq is None:
+            return
+        last = self._last_seq.get(topic)
+        self._last_seq[topic] = seq
+        if last is None or seq <= last + 1:
+            return
+        sub = (self.crank_length_cmd_subscription if topic == 'crank_length_cmd'
+               else self.load_torque_cmd_subscription)
+        if sub.get_publisher_count() != 1:
+            return
+        lost = seq - last - 1
+        self.loop.stats.lost += lost
+        self.loop.warn('lost', f"{lost} command messages were lost before reaching the node "
+                               f"({self.loop.stats.lost} in all): the publisher's history is "
+                               f"shorter than its backlog (publish with keep_all or a deeper "
+                               f"history, or wait for each sample in lockstep)")
 
     def take_commands(self):
         """Free-running modes (loop thread): hand the commands that arrived to their callbacks
@@ -302,7 +334,7 @@ class CvtSimNode(Node):
                     return
                 if taken is None:
                     break
-                sub.callback(taken[0])
+                sub.callback(*taken)
 
     def commands_to_loop(self, takes):
         """The loop takes the commands itself (running free) or the executor delivers them."""
@@ -327,15 +359,15 @@ class CvtSimNode(Node):
         return response
 
     def step_callback(self, request, response):
-        """Advance exactly one control period while paused or in lockstep mode."""
+        """Advance step_periods control periods (default 1) while paused or in lockstep mode;
+        the response names the state reached (time, crank length, load torque in force)."""
         loop = self.loop
-        if not (loop.paused or loop.mode == 'lockstep'):
+        if not loop.held():
             response.success = False
             response.message = (f"~/step advances only while paused or in lockstep mode "
                                 f"(time_mode is {loop.mode}); call ~/pause first")
             return response
-        waiter = loop.submit('step')
-        response.success, response.message = waiter.success, waiter.message
+        response.success, response.message = loop.step(loop.step_periods)
         return response
 
     # ------------------------------------------------------------------ the loop's port
@@ -343,7 +375,8 @@ class CvtSimNode(Node):
         return self.context.ok()
 
     def publish_present(self, period):
-        """The present state: latched clutch state, then a sample (start-up, reset)."""
+        """The present state: latched clutch state, then a sample (start-up, reset); both stay
+        latched for late joiners (clutch_engaged, state)."""
         msg = Bool(data=bool(period.row[COL['engaged']]))
         self.clutch_engaged_publisher.publish(msg)
         self._hand_to_recorder(self._topic['clutch_engaged'], msg,
@@ -358,23 +391,21 @@ class CvtSimNode(Node):
         self._hand_to_recorder(self._topic['clutch_engaged'], msg, interface.stamp_ns(event.t))
 
     def publish_sample(self, period):
+        """joint_states, state and /clock of one period's end, serialized once (CDR bytes)."""
         row = period.row
-        ns = interface.stamp_ns(row[COL['t']])
-        msg = self._js
-        names = self._joint_names
-        if names is not self._js_names:
-            msg.name = names
-            self._js_names = names
-        interface.set_stamp(msg.header.stamp, ns)
-        msg.position = array.array('d', row[_POSITION].tolist())
-        msg.velocity = array.array('d', row[_VELOCITY].tolist())
-        msg.effort = array.array('d', row[_EFFORT].tolist())
-        self.joint_states_publisher.publish(msg)
-        self._hand_to_recorder(self._topic['joint_states'], msg, ns)
+        ns = interface.stamp_ns(row[0])
+        sec, nanosec = divmod(ns, 1_000_000_000)
+        values = row.take(_FIELDS).tolist()
+        values[_RATE_SLOT] = period.crank_rate
+        values[_FORCE_SLOT] = math.nan   # the actuator's force is not modelled
+        data = self._encoder.encode(sec, nanosec, values)
+        self.joint_states_publisher.publish(data)
+        self.state_publisher.publish(data)
+        self._hand_to_recorder(self._topic['joint_states'], data, ns)
         if self._publish_clock:
-            interface.set_stamp(self._clock_msg.clock, ns)
-            self.clock_publisher.publish(self._clock_msg)
-            self._hand_to_recorder(self._topic['clock'], self._clock_msg, ns)
+            clock = interface.clock_cdr(ns)
+            self.clock_publisher.publish(clock)
+            self._hand_to_recorder(self._topic['clock'], clock, ns)
         self._published_ns = ns
 
     def recording_reset(self):
@@ -404,8 +435,8 @@ class CvtSimNode(Node):
         logger = self.get_logger()
         try:
             self._recorder = SimulationRecorder(
-                path, topic_names=dict(self._topic), joint_names=self._joint_names,
-                parameters=physics_values(self.device.values), source='cvt_node',
+                path, topic_names=dict(self._topic), joint_names=self._joint_names[:4],
+                parameters=self.device.values, scene=self._scene_name, source='cvt_node',
                 on_error=lambda exc: logger.error(f"recording to {path} stopped: {exc}; "
                                                   f"the simulation goes on"))
             logger.info(f"recording to {path}")
@@ -441,7 +472,7 @@ class CvtSimNode(Node):
             loop.snapshot, loop.stats, device.step_ns,
             {'mode': loop.mode, 'state': state, 'real_time_factor': loop.rtf,
              'publish_rate': device.values['publish_rate'], 'control_period': device.dt,
-             'fault': fault})
+             'fault': fault, 'policy': REALTIME_POLICY if loop.mode == 'realtime' else '-'})
         if report is None:
             return
         level, message, values = report
