@@ -3,6 +3,7 @@ import argparse
 import sys
 
 import rclpy
+from rclpy._rclpy_pybind11 import UnknownROSArgsError
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.utilities import remove_ros_args
 
@@ -34,7 +35,22 @@ def main(args=None):
     follow ``--ros-args``. Used by the ``cvt_node`` console script and ``cvt-sim node``.
     """
     argv = list(sys.argv[1:] if args is None else args)
-    options = build_parser().parse_args(remove_ros_args(['cvt_node'] + argv)[1:])
+    try:
+        return _run(argv)
+    except KeyboardInterrupt:   # Ctrl-C during start-up (imports, kernels, discovery)
+        print('cvt_node: interrupted', file=sys.stderr)
+        return 130
+
+
+def _run(argv):
+    try:
+        rest = remove_ros_args(['cvt_node'] + argv)[1:]
+    except UnknownROSArgsError as exc:   # e.g. `--ros-args --help`: not a ROS argument
+        print(f"cvt_node: unknown ROS arguments {exc}; ROS arguments: --ros-args "
+              f"[-p NAME:=VALUE] [--params-file FILE] [-r FROM:=TO]; cvt_node --help for the "
+              f"rest", file=sys.stderr)
+        return 2
+    options = build_parser().parse_args(rest)
     if options.scene is not None:
         base = options.scene
     elif '--params-file' in argv:
