@@ -41,7 +41,7 @@ def reference(values, z0, tau):
 def test_closed_form_matches_integration(changes):
     values = validate(changes)
     P = parameter_vector(values)
-    usable, lin, rate = modal_form(P)
+    usable, lin, rate, _ = modal_form(P)
     assert usable and rate > 0.0
     P[P_OUTPUT_RATE] = rate   # as the Simulator does: sets the quadrature panels
     z0 = np.array([0.01, 30.0, 12.0, 25.0, 1.0, 0.5])

@@ -20,11 +20,11 @@ from rest in one solver mode and sampled every 10 µs. Physically checkable outc
   span, 2·λ·T/π, plus 2 for the ends of the span.
 
 Solver settings: dopri5 at rtol 1e-10 for every formulation and output treatment, and RK4 at its
-default fixed step (the real-time mode, refined below the shaft's stability limit). At dopri5's
-default rtol 2e-6 an engagement whose slip dip is short against the step can be missed (found by
-this search; ``test_known_defect_*`` below, with reproductions: the known defects are reported
-and pinned, not loosened here). The sign tolerance 1e-3 leaves room for the shallow slip dips
-the open clutch's closed-form output can miss (≤ 2e-4 seen at rtol 1e-10, also pinned below).
+default fixed step (the real-time mode, refined below the shaft's stability limit). Defects
+this search found (a slip or torque dip inside one step, the closed-form output missing short
+re-engagements, a massless damped node) are fixed and kept below as regression tests; the same
+switches at every tolerance are asserted in test_events.py. The sign tolerance 1e-3 is that of
+the samples (an event is located to the tolerance, the samples around it interpolated).
 
 Run-time limits of the draw (results, not run time, are what these tests judge): a massless
 clutch node (J3 = 0) with shaft damping relaxes at c/kd; that rate is kept ≤ 1e5 1/s (beyond it
@@ -44,6 +44,7 @@ from hypothesis import HealthCheck, given, note, settings
 from hypothesis import strategies as st
 
 from cvt_ros.bench.defects import MASSLESS_DAMPED, RELEASE_DIP, SHORT_CATCH, clutch_signs
+from cvt_ros.parameters import SPECS
 from cvt_ros.physics.linkage import grashof_bound
 from cvt_ros.scene import load_scene
 from cvt_ros.solver.output import COL
@@ -193,7 +194,7 @@ def test_real_time_mode_refines_a_step_beyond_the_stability_limit(c, j3, factor)
     mode): refine_step auto sub-steps below it and the run is stable and close to dopri5."""
     base = dict(load_scene('paper'), **{'shaft.stiffness': c, 'inertia.clutch_driven': j3})
     lam = math.sqrt(c * (1.0 / j3 + 1.0 / base['inertia.output']))
-    step = factor * 2.83 / lam
+    step = min(factor * 2.83 / lam, SPECS['solver.fixed_step'].high)
     sim = Simulator(dict(base, **{'solver.method': 'rk4', 'solver.fixed_step': step}))
     assert sim.h_fixed * lam <= 0.5 + 1e-12
     result = sim.run(SPAN, SAMPLE_DT)
@@ -219,9 +220,9 @@ def test_plain_rk4_beyond_the_stability_limit_blows_up():
     assert sim.energy_balance()['relative_residual'] > 1e-2
 
 
-# ----------------------------------------------------------------------- known defects
+# ----------------------------------------------------------------------- defects, fixed
 # Found by the property search above at other settings; each is a minimal deterministic
-# reproduction, marked strict xfail so that a fix shows up as XPASS (then drop the marker).
+# reproduction, kept as a regression test.
 
 def test_a_release_whose_torque_dip_fits_inside_one_step_is_caught():
     # was a defect: the clutch torque has no derivative for a Hermite dip test; the step's
@@ -234,10 +235,10 @@ def test_a_release_whose_torque_dip_fits_inside_one_step_is_caught():
     assert np.min(torque[engaged]) >= -1e-6 * np.max(torque)
 
 
-@pytest.mark.xfail(strict=True, reason='exact open-clutch output: the slip dip test on each '
-                   'sub-interval uses the rocker\'s mean acceleration and misses short dips '
-                   '(hybrid._split_output)')
-def test_known_defect_exact_output_misses_a_reengagement_on_the_stiff_shaft():
+def test_the_exact_output_sees_every_short_reengagement_on_the_stiff_shaft():
+    # was a defect: the slip dip test on each sub-interval used the rocker's mean acceleration;
+    # now its exact rate at both ends, and pieces halved where the cubic's error bound could
+    # hide a dip (hybrid._split_dip)
     values = dict(load_scene('stiff_shaft'), **{'solver.rtol': 1e-12, 'solver.atol': 1e-14,
                                                'solver.max_step': 1e-3})
     counts, min_slip = {}, {}
@@ -253,10 +254,9 @@ def test_known_defect_exact_output_misses_a_reengagement_on_the_stiff_shaft():
                                                                                   min_slip)
 
 
-@pytest.mark.xfail(strict=True, reason='massless damped clutch node: ω3 = ω4 − c·θ/kd amplifies '
-                   'the stiff θ\'s step-to-step error by c/kd; at the default rtol the sampled '
-                   'slip turns negative and a catch becomes engage/release/engage')
-def test_known_defect_massless_damped_node_at_default_tolerance():
+def test_a_massless_damped_node_at_the_default_tolerance():
+    # was a defect: ω3 = ω4 − c·θ/kd amplified the stiff θ's step-to-step error by c/kd; the
+    # open node's twist now relaxes exactly (hybrid._relax_twist)
     runs = {}
     for rtol in (2e-6, 1e-10):
         sim = Simulator(dict(load_scene('paper'), **MASSLESS_DAMPED,
@@ -270,10 +270,9 @@ def test_known_defect_massless_damped_node_at_default_tolerance():
     assert runs[2e-6][0] == runs[1e-10][0] and runs[2e-6][1] >= -1e-6, runs
 
 
-@pytest.mark.xfail(strict=True, reason='a slip dip much shorter than the dopri5 step: the Hermite '
-                   'cubic of the slip through the step\'s ends does not dip, so the engagement is '
-                   'missed at the default rtol (hybrid._single_rate)')
-def test_known_defect_short_engagement_missed_at_default_tolerance():
+def test_a_short_engagement_inside_one_step_is_caught_at_the_default_tolerance():
+    # was a defect: the Hermite cubic of the slip through the step's ends did not dip; now the
+    # guard's polynomial along the whole step is searched (solver/witness.py)
     values = dict(load_scene('paper'), **SHORT_CATCH)
     runs = {}
     for rtol in (2e-6, 1e-10):

@@ -4,7 +4,10 @@
     DISENGAGED ──(slip s = ω3 − v falls through 0)──▶ ENGAGED    reset: ω3 := v (s = 0, no impact)
 
 Release guard: the clutch torque Tc = J3·v' + Ts (``torque``, default: the clutch cannot pull) or
-the paper's torsion twist θ = φ3 − φ4 (``twist``; the two coincide as J3 → 0).
+the paper's torsion twist θ = φ3 − φ4 (``twist``; the two coincide as J3 → 0). The twist rule
+releases when θ has fallen to zero *and* the clutch can open (the open clutch's slip acceleration
+s'_free ≥ 0); while θ ≤ 0 and s'_free < 0 the clutch stays closed, and the release comes when
+s'_free rises through zero: guard max(θ, −k·s'_free).
 
 Complementarity decides the mode at s = 0 (t = 0, after parameter changes, at a located switch):
 engage iff the disengaged dynamics would drive the slip negative, s'_free < 0. For one unilateral
@@ -19,6 +22,7 @@ from .compiled import inline_kernel, kernel
 from .dynamics import rhs
 from .layout import (
     AUX_CLUTCH_TORQUE,
+    AUX_FREE_SLIP_RATE,
     AUX_ROCKER_ACCEL,
     AUX_ROCKER_SPEED,
     AUX_SLIP,
@@ -37,6 +41,7 @@ from .layout import (
 SLIP_TOLERANCE = 1e-10     # relative to the member speeds
 TORQUE_TOLERANCE = 1e-10   # relative to the scene's torque scale
 TWIST_TOLERANCE = 1e-13    # [rad]
+TWIST_RATE_SCALE = 1e-6    # [s²]: a free slip acceleration in the twist rule's guard, as a twist
 SLIP_RATE_TOLERANCE = 1e-10  # relative to the member accelerations
 CONTACT_PROBE_TIME = 1e-6  # [s] one look-ahead step at a higher-order contact
 PROBE_STEPS = 3
@@ -60,7 +65,11 @@ def clutch_guard(mode, y, dy, aux, P):
     """
     if mode == ENGAGED:
         if uses_twist_release(P):
-            return y[TWIST], dy[TWIST]
+            if y[TWIST] > 0.0:
+                return y[TWIST], dy[TWIST]
+            # twist at or below zero: released once the clutch can open (s'_free ≥ 0), so the
+            # release time does not depend on where a step happens to end
+            return max(y[TWIST], -TWIST_RATE_SCALE * aux[AUX_FREE_SLIP_RATE]), float('nan')
         return aux[AUX_CLUTCH_TORQUE], float('nan')
     return aux[AUX_SLIP], aux[AUX_SLIP_RATE]
 

@@ -76,8 +76,9 @@ P_RIGID = 22      # 1.0 when c = inf (J3 and J4 lumped, θ ≡ 0)
 P_BAUMGARTE = 23  # constraint stabilization rate for the paper formulation [1/s]
 P_TORQUE_SCALE = 24  # a torque typical of the scene [N·m], sets the clutch torque event tolerance
 P_LINEAR_OUTPUT = 25  # 1.0: the disengaged output subsystem is linear and solved exactly
-P_OUTPUT_RATE = 26    # its fastest rate max|λ| [1/s]: how densely the slip is watched
-N_PARAMS = 27
+P_OUTPUT_RATE = 26    # its fastest rate max|λ| [1/s]
+P_OUTPUT_RING = 27    # its fastest oscillation max|Im λ| [1/s]: how densely the slip is watched
+N_PARAMS = 28
 
 MOTOR_INDUCTION = 0
 MOTOR_CONSTANT_TORQUE = 1
@@ -102,7 +103,8 @@ AUX_CONSTRAINT = 8        # f(φ1, φ2, a) [m²] (paper formulation drift; 0 in 
 AUX_CRANK_LENGTH = 9      # a(t) [m]
 AUX_ACTUATOR_POWER = 10   # power the crank actuator puts in [W]
 AUX_ENERGY = 11           # T + Π [J]
-N_AUX = 12
+AUX_FREE_SLIP_RATE = 12   # s' the open clutch would have here (engaged, twist release) [rad/s²]
+N_AUX = 13
 
 # --- crank actuator profile: rows of (t_start, a0, a'0, a'') -----------------------------------
 ACT_T = 0

@@ -50,25 +50,33 @@ GAUSS_PANEL_PHASE = 1.5  # [rad]: 8 nodes integrate e^{iωt} over 1.5 rad to ~1e
 
 
 def modal_form(P):
-    """(usable, LIN, fastest rate): LIN rows = λ, V (3 rows), V⁻¹ (3 rows), complex (7, 3).
+    """(usable, LIN, fastest rate, fastest oscillation): LIN rows = λ, V (3 rows), V⁻¹ (3 rows),
+    complex (7, 3); the rates max|λ| and max|Im λ| [1/s].
 
     usable is False when the output is not linear (quadratic load), has no J3 mode (J3 = 0 or a
-    rigid shaft), or A is too close to defective for a reliable eigenbasis.
+    rigid shaft), or A is too close to defective (or too extreme) for a reliable eigenbasis:
+    then the output is integrated.
     """
     lin = np.zeros((7, 3), dtype=np.complex128)
     J3, J4, c, k, kv = P[P_J3], P[P_J4], P[P_C], P[P_KD], P[P_LOAD_VISCOUS]
     if P[P_RIGID] > 0.0 or J3 <= 0.0 or P[P_LOAD_QUADRATIC] != 0.0:
-        return False, lin, 0.0
+        return False, lin, 0.0, 0.0
     A = np.array([[0.0, 1.0, -1.0],
                   [-c / J3, -k / J3, k / J3],
                   [c / J4, k / J4, -(k + kv) / J4]])
-    lam, V = np.linalg.eig(A)
-    if not np.all(np.isfinite(lam)) or np.linalg.cond(V) > MAX_CONDITION:
-        return False, lin, 0.0
+    try:
+        if not np.all(np.isfinite(A)):
+            return False, lin, 0.0, 0.0
+        lam, V = np.linalg.eig(A)
+        if not np.all(np.isfinite(lam)) or np.linalg.cond(V) > MAX_CONDITION:
+            return False, lin, 0.0, 0.0
+        inv = np.linalg.inv(V)
+    except np.linalg.LinAlgError:   # inertias at the table's extremes: integrate instead
+        return False, lin, 0.0, 0.0
     lin[0] = lam
     lin[1:4] = V
-    lin[4:7] = np.linalg.inv(V)
-    return True, lin, float(np.max(np.abs(lam)))
+    lin[4:7] = inv
+    return True, lin, float(np.max(np.abs(lam))), float(np.max(np.abs(lam.imag)))
 
 
 @inline_kernel

@@ -53,17 +53,25 @@ class RunResult:
     steps: int = 0
     rejected: int = 0
     energy: dict = field(default_factory=dict)
+    # rhs_evaluations, possible_missed_events, first_possible_missed_event_s, warnings (texts)
+    diagnostics: dict = field(default_factory=dict)
 
     def column(self, name):
         return self.samples[:, COL[name]]
 
 
 _FAILURES = {
-    H.STATUS_STEP_TOO_SMALL: 'step size underflow',
+    H.STATUS_STEP_TOO_SMALL: 'the step size fell below the resolution of t (step-size floor)',
     H.STATUS_NONFINITE: 'non-finite state',
     H.STATUS_ZENO: 'clutch events without time advancing (Zeno)',
+    H.STATUS_NO_PROGRESS: 'no progress: the step budget of one call was spent',
 }
 _KIND_NAMES = {0: 'release', 1: 'engage', 2: 'engage_impact', 3: 'graze'}
+STEP_BUDGET = 20_000_000      # steps one advance call may take (≥ 20 s of wall time): watchdog
+MAX_KEPT_ROWS = 10_000_000    # samples a run keeps in memory (1.8 GB); beyond: stream them
+ROWS_PER_BLOCK = 100_000      # samples written per compiled call
+SLOW_STEPS_PER_SECOND = 2e6   # steps per simulated second beyond which a run is warned about
+DP5_STABILITY = 3.3           # Dormand–Prince's stability interval, |h·λ| (imaginary axis)
 
 
 def settings_vector(values, h_fixed):
@@ -73,6 +81,7 @@ def settings_vector(values, h_fixed):
     S[H.S_ATOL] = values['solver.atol']
     S[H.S_H_FIXED] = h_fixed
     S[H.S_MAX_STEP] = values['solver.max_step']
+    S[H.S_STEP_BUDGET] = STEP_BUDGET
     return S
 
 
@@ -93,6 +102,38 @@ def fastest_rate(values):
             rates.append(math.sqrt(c * inv) + kd * inv)
     rates.append(values['load.viscous'] / J4)
     return max(rates)
+
+
+def resolution_warnings(values, exact_output, h_fixed):
+    """Texts that name the setting to change when a scene is stiffer than the explicit method
+    can resolve in reasonable time (issue 12): the steps per simulated second its fastest
+    resolved mode needs."""
+    c = math.inf if values['model.fidelity'] == 'rigid_shaft' else values['shaft.stiffness']
+    if values['model.fidelity'] == 'averaged':
+        return []
+    if values['solver.method'] == 'rk4':
+        per_second = 1.0 / h_fixed
+        what = f"solver.method rk4 refines its step to {h_fixed:.3g} s"
+    else:
+        kd = values['shaft.damping']
+        J2, J3, J4 = (values['inertia.rocker'], values['inertia.clutch_driven'],
+                      values['inertia.output'])
+        rate = max(abs(values['initial.crank_speed']), values['motor.synchronous_speed'])
+        if math.isfinite(c):
+            inv = 1.0 / J4 + (1.0 / (J2 + J3) if J2 + J3 > 0.0 else 0.0)
+            rate = max(rate, math.sqrt(c * inv) + kd * inv)   # engaged twist mode
+            if not exact_output:                               # the open output, integrated
+                rate = max(rate, fastest_rate(values))
+        per_second = rate / DP5_STABILITY
+        what = (f"its fastest mode (λ ≈ {rate:.3g} 1/s) needs dopri5 steps of "
+                f"≤ {1 / per_second:.2g} s")
+    if per_second <= SLOW_STEPS_PER_SECOND:
+        return []
+    return [f"this scene is stiff for an explicit method: {what}, ≥ {per_second:.2g} steps per "
+            f"simulated second (seconds of wall time each); shaft.stiffness = {c:g} N·m/rad, "
+            f"shaft.damping = {values['shaft.damping']:g} N·m·s/rad, inertia.clutch_driven = "
+            f"{values['inertia.clutch_driven']:g} kg·m² set it: a softer or less damped shaft, "
+            f"or model.fidelity rigid_shaft / averaged, runs in reasonable time"]
 
 
 class Simulator:
@@ -128,6 +169,7 @@ class Simulator:
         self.turns_phi1 = 0.0       # angle folded out of φ1 and φ4 [rad]
         self.turns_phi4 = 0.0
         self.switch_count = 0
+        self.first_late_event = None
         self._configure_steps()
         self._set_rocker_from_linkage()
         self._settle_clutch()
@@ -136,15 +178,17 @@ class Simulator:
         self._call(self.t, self._empty_grid, self._empty_out)
 
     def _configure_steps(self):
-        usable, self.LIN, rate = modal_form(self.P)
+        usable, self.LIN, rate, ring = modal_form(self.P)
         usable = usable and self.values['solver.output_subsystem'] == 'exact'
         self.P[L.P_LINEAR_OUTPUT] = 1.0 if usable else 0.0
         self.P[L.P_OUTPUT_RATE] = rate
+        self.P[L.P_OUTPUT_RING] = ring
         self.h_stable = RK4_STEP_BY_MODE / fastest_rate(self.values)
         self.h_fixed = self.values['solver.fixed_step']
         if self.values['solver.refine_step'] == 'auto':
             self.h_fixed = min(self.h_fixed, self.h_stable)
         self.S = settings_vector(self.values, self.h_fixed)
+        self.warnings = resolution_warnings(self.values, usable, self.h_fixed)
 
     def _set_rocker_from_linkage(self):
         a, ad, _ = crank_actuator(self.t, self.ACT)
@@ -258,20 +302,29 @@ class Simulator:
                       self.h_io, grid, out, self._events_buf, self.counters, self.ledger)
         self.t = t
         n_ev = int(self.counters[H.C_EVENTS])
-        switches = []
-        for row in self._events_buf[:n_ev]:
-            kind = int(row[H.E_KIND])
-            switches.append(ClutchSwitch(float(row[H.E_T]),
-                                         bool(row[H.E_MODE] == L.ENGAGED), _KIND_NAMES[kind],
-                                         float(row[H.E_VALUE])))
-            if kind != KIND_GRAZE:
-                self.switch_count += 1
+        rows = self._events_buf[:n_ev]
+        switches = [ClutchSwitch(float(row[H.E_T]), bool(row[H.E_MODE] == L.ENGAGED),
+                                 _KIND_NAMES[int(row[H.E_KIND])], float(row[H.E_VALUE]))
+                    for row in rows]
+        self.switch_count += int(np.count_nonzero(rows[:, H.E_KIND] != KIND_GRAZE))
+        late = rows[rows[:, H.E_LATE] > 0.0]
+        if len(late) and self.first_late_event is None:
+            self.first_late_event = float(late[0, H.E_T])
         self.counters[H.C_EVENTS] = 0
         status = int(self.counters[H.C_STATUS])
         if status in _FAILURES:
-            raise SimulationError(f"integration failed at t = {self.t:.9g} s: {_FAILURES[status]}"
-                                  f" (last clutch events: {switches[-3:]})")
+            raise SimulationError(self._failure_text(status, switches))
         return switches, status
+
+    def _failure_text(self, status, switches):
+        text = f"integration failed at t = {self.t:.9g} s: {_FAILURES[status]}"
+        if status in (H.STATUS_STEP_TOO_SMALL, H.STATUS_NO_PROGRESS, H.STATUS_NONFINITE):
+            text += (" — the scene's values drive the model beyond what it can resolve; check "
+                     "the largest of load.*, shaft.*, motor.*, inertia.* and initial.crank_speed "
+                     "(cvt-sim params shows their ranges)")
+            if self.warnings:
+                text += f"; {self.warnings[0]}"
+        return text + f" (last clutch events: {switches[-3:]})"
 
     def _advance_to(self, t_end, grid, out):
         """Integrate to t_end, draining the event table as often as it fills."""
@@ -293,43 +346,93 @@ class Simulator:
         self._rebase_angles()
         return switches
 
-    def run(self, duration, sample_dt, progress=None):
-        """Integrate for ``duration`` [s], sampling every ``sample_dt`` [s] (t = 0 included)."""
+    def run(self, duration, sample_dt, progress=None, on_samples=None, keep_samples=True):
+        """Integrate for ``duration`` [s], sampling every ``sample_dt`` [s] on the grid
+        t0 + k·sample_dt (t0 included; the last sample is exactly t0 + duration when that is on
+        the grid).
+
+        Samples are produced in blocks of at most ROWS_PER_BLOCK rows: ``on_samples(block)`` gets
+        each block (an array of rows, columns output.COLUMNS) as soon as it is written;
+        ``keep_samples`` False keeps none in the result (constant memory for any duration),
+        True keeps them all (refused beyond MAX_KEPT_ROWS rows: stream them instead).
+        Raises SimulationError when the run cannot go on or its energy balance is not finite.
+        """
         if not (duration > 0.0 and math.isfinite(duration)):
             raise ValueError(f"duration must be a positive finite time, got {duration!r}")
         if not (sample_dt > 0.0 and math.isfinite(sample_dt)):
             raise ValueError(f"sample dt must be a positive finite time, got {sample_dt!r}")
         t0 = self.t
-        n = int(math.floor(duration / sample_dt + 1e-9)) + 1
-        grid = t0 + sample_dt * np.arange(n)
-        out = np.empty((n, N_COLUMNS))
-        out[0] = self.sample()
-        self.counters[H.C_NEXT_SAMPLE] = 1
         t_stop = t0 + duration
+        n_last = math.floor(duration / sample_dt + 1e-9)   # index of the last sample
+        if not (n_last < 2 ** 53 and t0 + sample_dt > t0):
+            raise ValueError(f"sample dt {sample_dt!r} s is too small for a run of "
+                             f"{duration!r} s from t = {t0!r} s")
+        if keep_samples and n_last + 1 > MAX_KEPT_ROWS:
+            raise ValueError(f"a run of {duration:g} s sampled every {sample_dt:g} s has "
+                             f"{n_last + 1:.3g} samples, more than the {MAX_KEPT_ROWS:.0e} "
+                             f"kept in memory: sample less often or stream them "
+                             f"(on_samples, keep_samples=False)")
+        first_row = self.sample()[None, :]
+        kept = [first_row] if keep_samples else []
+        if on_samples is not None:
+            on_samples(first_row)
         steps0 = int(self.counters[H.C_STEPS])
         rej0 = int(self.counters[H.C_REJECTED])
+        rhs0 = int(self.counters[H.C_RHS])
+        late0 = int(self.counters[H.C_LATE])
         switches = []
         wall0 = time.perf_counter()
-        chunk = max(sample_dt, min(1.0, duration / 50.0))
+        chunk = min(max(sample_dt, min(1.0, duration / 50.0)), ROWS_PER_BLOCK * sample_dt)
+        if self.S[H.S_METHOD] == RK4:   # whole fixed steps per call: the grid is not cut short
+            chunk = math.ceil(chunk / self.h_fixed - 1e-9) * self.h_fixed
+        k_next = 1   # index of the next sample
         t_next = t0
         while self.t < t_stop:
             t_next = min(t_stop, t_next + chunk)
-            # samples are written in (t, t_next]; rebasing between chunks shifts angles, so the
-            # rows are corrected by the offsets in force while they were written
-            first = int(self.counters[H.C_NEXT_SAMPLE])
+            k_end = min(n_last, math.floor((t_next - t0) / sample_dt + 1e-9))
+            grid = t0 + sample_dt * np.arange(k_next, k_end + 1)
+            if k_end == n_last and len(grid):
+                grid[-1] = min(grid[-1], t_stop)   # the grid ends exactly at T
+            out = np.empty((len(grid), N_COLUMNS))
+            self.counters[H.C_NEXT_SAMPLE] = 0
+            # rebasing between chunks shifts angles: the rows written in this chunk are
+            # corrected by the offsets in force while they were written
             off1, off4 = self.turns_phi1, self.turns_phi4
             switches += self._advance_to(t_next, grid, out)
-            last = int(self.counters[H.C_NEXT_SAMPLE])
-            out[first:last, COL['phi1']] += off1
-            out[first:last, COL['phi3']] += off4
-            out[first:last, COL['phi4']] += off4
+            block = out[:int(self.counters[H.C_NEXT_SAMPLE])]
+            block[:, COL['phi1']] += off1
+            block[:, COL['phi3']] += off4
+            block[:, COL['phi4']] += off4
+            k_next += len(block)
+            if len(block):
+                if keep_samples:
+                    kept.append(block)
+                if on_samples is not None:
+                    on_samples(block)
             self._rebase_angles()
             if progress is not None:
                 progress(self.t - t0, duration)
         wall = time.perf_counter() - wall0
-        return RunResult(out[:int(self.counters[H.C_NEXT_SAMPLE])], switches, wall,
-                         int(self.counters[H.C_STEPS]) - steps0,
-                         int(self.counters[H.C_REJECTED]) - rej0, self.energy_balance())
+        energy = self.energy_balance()
+        if not math.isfinite(energy['residual']):
+            raise SimulationError(
+                f"the energy balance is not finite at t = {self.t:.9g} s (stored energy "
+                f"{energy['stored']!r} J, motor work {energy['work_motor']!r} J): the scene's "
+                "values overflow the model; check inertia.*, initial.crank_speed and the torques")
+        late = int(self.counters[H.C_LATE]) - late0
+        warnings = list(self.warnings)
+        if late:
+            warnings.append(
+                f"{late} clutch switch(es) found only after the step that crossed them (first at "
+                f"t = {self.first_late_event:.9g} s): an event may have been missed there; a "
+                "tighter solver.rtol or a smaller solver.max_step locates it")
+        diagnostics = {'rhs_evaluations': int(self.counters[H.C_RHS]) - rhs0,
+                       'possible_missed_events': late,
+                       'first_possible_missed_event_s': self.first_late_event if late else None,
+                       'warnings': warnings}
+        samples = np.concatenate(kept) if keep_samples else np.empty((0, N_COLUMNS))
+        return RunResult(samples, switches, wall, int(self.counters[H.C_STEPS]) - steps0,
+                         int(self.counters[H.C_REJECTED]) - rej0, energy, diagnostics)
 
     def _rebase_angles(self):
         """Fold whole turns out of φ1 and φ4 so their sines keep full precision for hours."""

@@ -14,7 +14,15 @@ import numpy as np
 
 from ..physics.compiled import inline_kernel, kernel
 from ..physics.dynamics import output_rhs, rhs
-from ..physics.layout import INPUT_DYNAMIC, N_AUX, N_DYNAMIC, N_OUTPUT_DYNAMIC, OUTPUT_STATES
+from ..physics.layout import (
+    INPUT_DYNAMIC,
+    N_AUX,
+    N_DYNAMIC,
+    N_OUTPUT_DYNAMIC,
+    OUTPUT_STATES,
+    TWIST,
+    W_DAMPING,
+)
 
 DOPRI5 = 0
 RK4 = 1
@@ -23,10 +31,13 @@ RK4 = 1
 FULL = 0
 OUTPUT = 1
 INPUT = 2  # the whole state, output subsystem frozen (it is integrated apart, see hybrid.py)
+MASSLESS = 3  # the whole state, a massless damped node's twist (and its damping work) frozen:
+#               open, θ' = −(c/k)·θ is solved exactly apart from the step (hybrid.py)
 # components under error control
 ERR_FULL = np.arange(N_DYNAMIC)
 ERR_INPUT = np.array(INPUT_DYNAMIC)
 ERR_OUTPUT = np.arange(N_OUTPUT_DYNAMIC)
+ERR_MASSLESS = np.array([i for i in range(N_DYNAMIC) if i != TWIST])
 
 # Dormand–Prince 5(4) (scipy RK45)
 DP_C = np.array([0.0, 1 / 5, 3 / 10, 4 / 5, 8 / 9, 1.0])
@@ -65,6 +76,9 @@ def evaluate(kind, t, y, mode, P, ACT, dy, aux):
         if kind == INPUT:
             for i in OUTPUT_STATES:
                 dy[i] = 0.0
+        elif kind == MASSLESS:
+            dy[TWIST] = 0.0
+            dy[W_DAMPING] = 0.0
 
 
 @kernel
@@ -157,6 +171,28 @@ def dense_state(method, theta, h, y0, y1, K, out):
         h11 = t3 - t2
         for i in range(n):
             out[i] = h00 * y0[i] + h10 * h * K[0, i] + h01 * y1[i] + h11 * h * K[6, i]
+
+
+@inline_kernel
+def dense_coefficients(method, h, y0, y1, K, i, c):
+    """The dense output of component i over the last step as a polynomial in θ ∈ [0, 1]:
+    y_i(t0 + θ·h) = Σ_k c[k]·θ^k (c[0..4]; the rest of c is zeroed). Its θ-derivative over h is
+    the dense output of y_i' (K[0] at θ = 0, K[6] at θ = 1)."""
+    for k in range(c.shape[0]):
+        c[k] = 0.0
+    c[0] = y0[i]
+    if method == DOPRI5:
+        for s in range(7):
+            k = K[s, i]
+            for j in range(4):
+                c[j + 1] += h * k * DP_P[s, j]
+    else:
+        d0 = h * K[0, i]
+        d1 = h * K[6, i]
+        dy = y1[i] - y0[i]
+        c[1] = d0
+        c[2] = 3.0 * dy - 2.0 * d0 - d1
+        c[3] = -2.0 * dy + d0 + d1
 
 
 @kernel
