@@ -138,9 +138,10 @@ def _loop(scenario, controller, plant, controller_name, progress):
     clamped = 0
     error = None
     every = max(1, n // 100)
+    skips = getattr(plant, 'skips_periods', False)   # realtime: the newest sample only
     k = 0
     try:
-        for k in range(n):
+        while k < n:
             if load[k] != load_now:
                 load_now = load[k]
                 plant.set_load_torque(float(load_now))
@@ -172,11 +173,12 @@ def _loop(scenario, controller, plant, controller_name, progress):
                     sent = passed
                     plant.command_crank_length(passed)
             row, sw = plant.step()
-            rows[k + 1] = row
+            k_next = min(max(k + 1, int(round(row[0] / dt))), n) if skips else k + 1
+            rows[k_next] = row
             switches.extend(sw)
-            if progress is not None and k % every == 0:
-                progress(k * dt, scenario.duration)
-        k = n
+            if progress is not None and k // every != k_next // every:
+                progress(k_next * dt, scenario.duration)
+            k = k_next
     except ControllerError as exc:
         error = str(exc)
     except SimulationError as exc:
@@ -187,8 +189,17 @@ def _loop(scenario, controller, plant, controller_name, progress):
     for i, value in getattr(plant, 'observed_commands', ()):   # an external controller's
         if i <= k:
             commands[i] = value
-    done = k
+    keep = np.flatnonzero(np.isfinite(rows[:k + 1, 0]))   # (realtime: the samples seen)
+    samples = rows[keep]
+    recorded = plant.recorded_samples(k * dt) if hasattr(plant, 'recorded_samples') else None
+    if recorded is not None and len(recorded[0]):
+        # realtime: the device's own recording has every period; the controller saw `keep`
+        samples, switches = recorded
+        keep = np.clip(np.round(samples[:, 0] / dt).astype(int), 0, n)
+        seen = commands
+        commands = np.full(n + 1, np.nan)
+        commands[keep] = seen[keep]
     return ScenarioRun(scenario=scenario, backend=plant.name, controller=controller_name,
-                       samples=rows[:done + 1], setpoint=setpoint[:done + 1],
-                       load=load[:done + 1], commands=commands[:done + 1], switches=switches,
-                       clamped=clamped, wall_time=wall, error=error)
+                       samples=samples, setpoint=setpoint[keep], load=load[keep],
+                       commands=commands[keep], switches=switches, clamped=clamped,
+                       wall_time=wall, error=error)

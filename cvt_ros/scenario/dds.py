@@ -1,0 +1,322 @@
+"""``--backend dds``: the device as ``cvt_node`` in a process of its own, over ROS 2.
+
+The node runs on a ROS domain held for this run alone (``cvt_ros.device.domains``), from a
+parameters file with every scene value of the scenario (so it runs exactly the offline
+model), ``time_mode: lockstep`` and ``steps_per_command: 1``: each crank_length_cmd advances one
+control period. The protocol (docs/node.md, "Lockstep"):
+
+* start: the node publishes the t = 0 sample on ``state`` (latched); the harness waits for it and
+  for its command publishers to be matched — nothing is sent into the void;
+* each period: the harness publishes one crank_length_cmd (the controller's, or the one in force
+  again: the device does not re-plan an unchanged command) and waits for the sample of the next
+  period on ``state``; clutch switches arrive on ``clutch_engaged`` in between;
+* a load change is published on load_torque_cmd just before the crank command of its period.
+  The node applies load commands in arrival order at the next period; two topics have no
+  common order in DDS, so on a busy machine a load change can land one period late (waiting
+  for the reader's acknowledgement would close the gap but costs up to FastDDS's 3 s heartbeat
+  period per change). Set-point changes have no such race (they live in the controller).
+
+With ``controller_cmd`` the controller is an external process (e.g. ``cvt_speed_controller``),
+started with ROS_DOMAIN_ID of the run and CVT_SETPOINT_FILE naming a CSV of the set point per
+control period (the reference controller's ``setpoint_file``); the harness then only watches:
+it records each sample and sends the load schedule. ``realtime``: the node runs against the wall
+clock at that real-time factor (HIL rehearsal), the harness reacts to the newest sample.
+"""
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from ..device import domains
+from ..solver.output import COL, N_COLUMNS
+from ..solver.simulator import SimulationError
+from .plants import plant_values
+
+STATE = 'state'             # the device's latched latest sample (cvt_ros.interface.STATE)
+START_TIMEOUT_S = 300.0     # node start incl. compiling the kernels on a cold cache, loaded machine
+PERIOD_TIMEOUT_S = 30.0     # one lockstep period (a loaded machine stalls, it does not fail)
+_POS = [COL[c] for c in ('phi1', 'phi2', 'phi3', 'phi4')]
+_VEL = [COL[c] for c in ('omega1', 'omega2', 'omega3', 'omega4')]
+_EFF = [COL[c] for c in ('motor_torque', 'clutch_torque', 'shaft_torque', 'load_torque')]
+
+
+class DdsError(SimulationError):
+    """The node or the DDS link failed (the node's log tail is in the message)."""
+
+
+def node_parameters(values, period, mode='lockstep', rtf=1.0):
+    """The node's parameters for a scenario: every scene value, the time mode, the period."""
+    params = {k: v for k, v in values.items()}
+    params.update({'time_mode': mode, 'steps_per_command': 1 if mode == 'lockstep' else 0,
+                   'publish_rate': 1.0 / period, 'real_time_factor': float(rtf),
+                   'record.path': ''})
+    return params
+
+
+def write_params_file(path, params):
+    clean = {k: (float(v) if isinstance(v, float) else v) for k, v in params.items()}
+    Path(path).write_text(yaml.safe_dump({'cvt_sim': {'ros__parameters': clean}},
+                                         sort_keys=True))
+
+
+def row_from_state(msg, order, actuator):
+    """A sample row (COLUMNS, NaN where a message has no value) from a ``state`` JointState."""
+    row = np.full(N_COLUMNS, np.nan)
+    ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+    row[COL['t']] = ns * 1e-9
+    p, v, e = msg.position, msg.velocity, msg.effort
+    for j, i in enumerate(order):
+        row[_POS[j]] = p[i]
+        row[_VEL[j]] = v[i]
+        row[_EFF[j]] = e[i]
+    row[COL['twist']] = row[COL['phi3']] - row[COL['phi4']]
+    row[COL['engaged']] = 1.0 if row[COL['clutch_torque']] > 0.0 else 0.0
+    if actuator is not None:
+        row[COL['crank_length']] = p[actuator]
+    return row, ns
+
+
+class DdsPlant:
+    """The harness's view of ``cvt_node`` (see the module docstring)."""
+    name = 'dds'
+
+    @property
+    def skips_periods(self):
+        return bool(self.realtime)
+
+    def __init__(self, scenario, controller_cmd=None, realtime=None, domain=None, log=None):
+        self.period = scenario.control_period
+        self.scenario = scenario
+        self.external = controller_cmd
+        self.realtime = realtime
+        self._own_lease = domain is None
+        self.lease = domains.acquire() if domain is None else domain
+        self.tmp = tempfile.TemporaryDirectory(prefix='cvt_scenario_')
+        self.log = log or open(os.path.join(self.tmp.name, 'node.log'), 'w+')
+        # realtime too starts in lockstep: the t = 0 sample and the handshake first, then the
+        # harness switches time_mode (a live parameter) and the wall clock takes over
+        params_file = os.path.join(self.tmp.name, 'scene.yaml')
+        params = node_parameters(plant_values(scenario), self.period, 'lockstep', realtime or 1.0)
+        self.recording = os.path.join(self.tmp.name, 'run.mcap') if realtime else ''
+        params['record.path'] = self.recording   # realtime: the whole trace comes from here
+        write_params_file(params_file, params)
+        self.env = dict(os.environ, ROS_DOMAIN_ID=str(self.lease.domain),
+                        ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
+        self.env.setdefault('AMENT_PREFIX_PATH', sys.prefix)
+        self.env.pop('ROS_STATIC_PEERS', None)
+        self.proc = subprocess.Popen(
+            [sys.executable, '-m', 'cvt_ros.device', '--ros-args', '--params-file', params_file],
+            env=self.env, stdout=self.log, stderr=subprocess.STDOUT, pass_fds=[self.lease.fd])
+        self.controller_proc = None
+        self._setup_ros()
+
+    # ------------------------------------------------------------------ ROS side
+    def _setup_ros(self):
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from sensor_msgs.msg import JointState
+        from std_msgs.msg import Bool, Float64
+
+        from .. import interface
+        self._Float64 = Float64
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=self.lease.domain)
+        self.node = rclpy.create_node('cvt_scenario_harness', context=self.context)
+        self.samples = []          # (ns, msg) of state messages not yet taken
+        self.switch_states = []    # clutch_engaged values not yet taken
+        self.node.create_subscription(JointState, STATE, self.samples.append,
+                                      interface.state_qos())
+        self.node.create_subscription(Bool, interface.CLUTCH_ENGAGED,
+                                      lambda m: self.switch_states.append(bool(m.data)),
+                                      interface.clutch_qos())
+        self.load_publisher = self.node.create_publisher(Float64, interface.LOAD_TORQUE_CMD,
+                                                         interface.command_qos())
+        self.crank_publisher = self.node.create_publisher(Float64, interface.CRANK_LENGTH_CMD,
+                                                          interface.command_qos())
+        self.observed_commands = []   # external controller: (sample index, value)
+        if self.external:
+            self.node.create_subscription(
+                Float64, interface.CRANK_LENGTH_CMD,
+                lambda m: self.observed_commands.append((self._index - 1, m.data)),
+                interface.command_qos())
+        self._index = 0
+        self._live = False
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._order = None
+        self._actuator = None
+        self._last_ns = -1
+        self._command = None
+        self._sent = None
+        self._engaged = None
+
+    def _spin_until(self, done, timeout, what):
+        end = time.monotonic() + timeout
+        while not done():
+            if self.proc.poll() is not None:
+                raise DdsError(f"cvt_node ended (exit {self.proc.returncode}) while waiting for "
+                               f"{what}:\n{self.node_log()}")
+            if self.controller_proc is not None and self.controller_proc.poll() is not None:
+                raise DdsError(f"the controller process ended (exit "
+                               f"{self.controller_proc.returncode}) while waiting for {what}")
+            if time.monotonic() > end:
+                raise DdsError(f"no {what} within {timeout:g} s:\n{self.node_log()}")
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def node_log(self, lines=15):
+        self.log.flush()
+        self.log.seek(0)
+        return ''.join(self.log.readlines()[-lines:])
+
+    def _next_sample(self):
+        """The next sample on ``state`` newer than the last one (row, switches since): in
+        lockstep the next period's; in realtime the newest (periods in between are skipped, as
+        a real-time controller skips what it was too slow for; ``skips_periods``)."""
+        self._spin_until(lambda: any(self._ns(m) > self._last_ns for m in self.samples),
+                         PERIOD_TIMEOUT_S if self._last_ns >= 0 else START_TIMEOUT_S,
+                         'sample from cvt_node')
+        msg = max(self.samples, key=self._ns)     # realtime: the newest; lockstep: the next
+        self.samples.clear()
+        if self._order is None:
+            from ..interface import joint_order
+            names = list(msg.name)
+            self._order = joint_order(names)
+            hits = [i for i, n in enumerate(names) if n.endswith('crank_length')]
+            self._actuator = hits[0] if len(hits) == 1 else None
+            if self._order is None:
+                raise DdsError(f"state without the device's joints: {names}")
+        row, ns = row_from_state(msg, self._order, self._actuator)
+        switches = []
+        for engaged in self.switch_states:
+            if engaged != self._engaged:
+                if self._engaged is not None:
+                    switches.append((row[COL['t']], engaged))   # time: the period's end
+                self._engaged = engaged
+        self.switch_states.clear()
+        self._last_ns = ns
+        self._index += 1
+        return row, switches
+
+    @staticmethod
+    def _ns(msg):
+        return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+    # ------------------------------------------------------------------ plant protocol
+    def start(self):
+        self._spin_until(lambda: self.crank_publisher.get_subscription_count() > 0
+                         and self.load_publisher.get_subscription_count() > 0,
+                         START_TIMEOUT_S, "cvt_node's command subscriptions")
+        row, _ = self._next_sample()
+        self._command = float(row[COL['crank_length']])
+        if self.external:
+            self._start_controller()
+        if self.realtime:
+            self._go_realtime()
+        return row
+
+    def _go_realtime(self):
+        """Switch the node to realtime mode (a live parameter change) after the handshake."""
+        from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+        from rcl_interfaces.srv import SetParameters
+        client = self.node.create_client(SetParameters, '/cvt_sim/set_parameters')
+        self._spin_until(client.service_is_ready, START_TIMEOUT_S, "cvt_node's parameters")
+        request = SetParameters.Request(parameters=[Parameter(
+            name='time_mode', value=ParameterValue(type=ParameterType.PARAMETER_STRING,
+                                                   string_value='realtime'))])
+        future = client.call_async(request)
+        self._live = True
+        self._spin_until(future.done, PERIOD_TIMEOUT_S, 'the switch to realtime')
+        result = future.result().results[0]
+        if not result.successful:
+            raise DdsError(f"cvt_node refused realtime mode: {result.reason}")
+
+    def _start_controller(self):
+        path = os.path.join(self.tmp.name, 'setpoint.csv')
+        grid = self.scenario.time_grid()
+        np.savetxt(path, np.column_stack([grid, self.scenario.setpoint.sample(grid)]),
+                   delimiter=',', header='t,setpoint', comments='', fmt='%.17g')
+        env = dict(self.env, CVT_SETPOINT_FILE=path)
+        self.controller_proc = subprocess.Popen(
+            self.external, shell=True, env=env, stdout=self.log, stderr=subprocess.STDOUT,
+            start_new_session=True)
+
+    def set_load_torque(self, torque):
+        msg = self._Float64()
+        msg.data = float(torque)
+        self.load_publisher.publish(msg)   # before this period's crank command (see above)
+
+    def command_crank_length(self, length):
+        self._command = float(length)
+
+    def step(self):
+        if not self.external and (not self._live or self._command != self._sent):
+            msg = self._Float64()
+            msg.data = self._command
+            self.crank_publisher.publish(msg)   # lockstep: this advances one period
+            self._sent = self._command
+        return self._next_sample()
+
+    def recorded_samples(self, t_end):
+        """Realtime: every sample and switch up to ``t_end`` from the node's own recording
+        (the harness saw only the newest samples); None in lockstep, where it saw them all.
+        Stops the node (SIGINT finishes the file)."""
+        if not self.recording:
+            return None
+        from rclpy.serialization import deserialize_message
+        from sensor_msgs.msg import JointState
+
+        from ..recording.reader import read_messages
+        self._stop(self.proc)
+        end_ns = round(t_end * 1e9)
+        rows, switches, engaged = [], [], None
+        for m in read_messages(self.recording, ['/joint_states', '/clutch_engaged'],
+                               strict=False):
+            if m.log_time_ns > end_ns:
+                break
+            if m.topic == '/clutch_engaged':
+                state = m.data[-1] == 1
+                if engaged is not None and state != engaged:   # (repeats are not switches)
+                    switches.append((m.log_time_ns * 1e-9, state))
+                engaged = state
+                continue
+            rows.append(row_from_state(deserialize_message(m.data, JointState), self._order,
+                                       self._actuator)[0])
+        return np.array(rows), switches
+
+    @staticmethod
+    def _stop(proc):
+        if proc is not None and proc.poll() is None:
+            try:
+                proc.send_signal(signal.SIGINT)
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+    def close(self):
+        if self.controller_proc is not None and self.controller_proc.poll() is None:
+            try:
+                os.killpg(self.controller_proc.pid, signal.SIGINT)
+                self.controller_proc.wait(10)
+            except (subprocess.TimeoutExpired, ProcessLookupError):
+                os.killpg(self.controller_proc.pid, signal.SIGKILL)
+                self.controller_proc.wait()
+        self._stop(self.proc)
+        try:
+            self.executor.shutdown(timeout_sec=1.0)
+            self.node.destroy_node()
+        finally:
+            self.context.try_shutdown()
+        if self._own_lease:
+            self.lease.release()
+        self.tmp.cleanup()
+
+
+__all__ = ['DdsError', 'DdsPlant', 'node_parameters', 'row_from_state', 'write_params_file']
