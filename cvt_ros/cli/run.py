@@ -3,6 +3,7 @@
 Parse, call the library (:mod:`cvt_ros.solver.offline`, :mod:`cvt_ros.scene`), print, return an
 exit code: 0 done, 1 done but the answer is suspect (a warning says why), 2 bad input.
 """
+import contextlib
 import math
 import sys
 import time
@@ -11,7 +12,7 @@ from ..parameters import SPECS
 from ..physics.linkage import grashof_bound
 from ..scene import available_scenes, load_scene, parse_override, resolve
 from ..solver.fidelity import choose_fidelity
-from ..solver.offline import run_scene, summarize, write_csv
+from ..solver.offline import CsvWriter, SampleStatistics, run_scene, summarize, tail_start
 from .arguments import positive_float, positive_seconds
 
 # Bounds on what one run may ask for: beyond them it would run for years or fill the disk.
@@ -66,6 +67,11 @@ def add_parsers(sub):
                     'the Grashof bound of the scene\'s geometry.')
     params.add_argument('--scene', metavar='SCENE',
                         help='show this scene\'s values and bounds (name or .yaml path)')
+    params.add_argument('--node', action='store_true',
+                        help='the values cvt_node starts with (base scene: --scene or conveyor; '
+                             'solver.method rk4 unless the scene sets it)')
+    params.add_argument('--markdown', action='store_true',
+                        help='print a Markdown table (docs/node.md\'s is `--node --markdown`)')
     params.set_defaults(func=params_command)
 
     warm = sub.add_parser(
@@ -143,10 +149,13 @@ def pick_fidelity(args, overrides, origins=None):
 
 def run_command(args):
     """Run a scene; returns the exit code."""
+    from ..solver.simulator import MAX_KEPT_ROWS
     rows = math.floor(args.duration / args.sample_dt) + 1
-    if rows > MAX_SAMPLES:
+    if rows > MAX_SAMPLES or (args.mcap and rows > MAX_KEPT_ROWS):
+        limit = MAX_KEPT_ROWS if args.mcap and rows <= MAX_SAMPLES else MAX_SAMPLES
+        what = ' recorded (--mcap)' if limit == MAX_KEPT_ROWS else ''
         print(f"cvt-sim run: error: --duration {args.duration:g} / --sample-dt "
-              f"{args.sample_dt:g} asks for {rows:.3g} samples, more than {MAX_SAMPLES:.0e}: "
+              f"{args.sample_dt:g} asks for {rows:.3g} samples{what}, more than {limit:.0e}: "
               f"raise --sample-dt", file=sys.stderr)
         return 2
     overrides, origins = overrides_from(args.set)
@@ -155,19 +164,32 @@ def run_command(args):
     if args.mcap:  # refuse a target that cannot be written before a long run, not after it
         from ..recording.recorder import check_target
         check_target(args.mcap, args.overwrite)
-    bar, update = progress_bar(args.duration) if not args.quiet else (None, None)
-    try:
+    statistics = SampleStatistics(tail_start(0.0, args.duration))
+    sinks = [statistics.add]
+    writing = [0.0]   # wall time spent in the sinks (CSV), not in the simulation
+
+    def on_samples(block):
+        t0 = time.perf_counter()
+        for sink in sinks:
+            sink(block)
+        writing[0] += time.perf_counter() - t0
+    with contextlib.ExitStack() as stack:
+        if args.csv:
+            csv = stack.enter_context(CsvWriter(args.csv))
+            sinks.append(csv.add)
+        if not args.quiet:
+            bar, update = progress_bar(args.duration)
+            stack.callback(bar.close)
+        else:
+            update = None
         sim, result = run_scene(args.scene, args.duration, overrides, args.sample_dt,
-                                progress=update, origins=origins)
-    finally:
-        if bar is not None:
-            bar.close()
-    if args.csv:
-        write_csv(args.csv, result.samples)
-    summary = summarize(result, args.duration)
+                                progress=update, origins=origins,
+                                on_samples=on_samples, keep_samples=bool(args.mcap))
+    result.wall_time = max(result.wall_time - writing[0], 0.0)   # the simulation's own time
+    summary = summarize(result, args.duration, statistics)
     print(format_summary(summary, args.scene))
     if args.csv:
-        print(f"samples          {len(result.samples)} rows → {args.csv}")
+        print(f"samples          {csv.rows} rows → {args.csv}")
     if args.mcap:
         from ..recording.recorder import write_run
         count, error = write_run(args.mcap, sim, result, scene=args.scene,
@@ -187,11 +209,21 @@ def scenes_command(args):
 
 
 def params_command(args):
-    values = load_scene(args.scene) if args.scene else load_scene(None)
+    if args.node:
+        from ..device.descriptors import DEFAULT_SCENE, node_values
+        values = node_values(args.scene or DEFAULT_SCENE)
+        source = (f"cvt_node's start values (base scene {args.scene or DEFAULT_SCENE}; "
+                  f"solver.method rk4 unless the scene sets it)")
+    else:
+        values = load_scene(args.scene) if args.scene else load_scene(None)
+        source = f"scene {resolve(args.scene)}" if args.scene else \
+            "built-in defaults (the paper's scene; cvt_node starts from the conveyor scene)"
+    if args.markdown:
+        from ..device.descriptors import parameter_table
+        print(parameter_table(values), end='')
+        return 0
     bound = grashof_bound(values['linkage.rocker_length'], values['linkage.coupler_length'],
                           values['linkage.pivot_distance'])
-    source = f"scene {resolve(args.scene)}" if args.scene else \
-        "built-in defaults (the paper's scene; cvt_node starts from the conveyor scene)"
     print(f"# values: {source}")
     print(f"{'name':28s} {'value':>11s} {'unit':14s} {'accepted':26s} meaning")
     for name, spec in SPECS.items():

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..scene import load_scene
 from .fidelity import make_simulator
-from .output import CSV_COLUMNS
+from .output import COL, CSV_COLUMNS
 
 # Columns printed as integers; every other column keeps 12 significant digits (1e-9 rad on φ4
 # after hours of running at ~40 rad/s).
@@ -21,47 +21,122 @@ RATIO_DEFINED_BELOW = 1e-6
 RESIDUAL_SUSPECT = 1e-3
 
 
-def run_scene(scene, duration, overrides=None, sample_dt=1e-3, progress=None, origins=None):
+def run_scene(scene, duration, overrides=None, sample_dt=1e-3, progress=None, origins=None,
+              on_samples=None, keep_samples=True):
     """Load ``scene`` (name or path) with ``overrides``, simulate ``duration`` [s] sampled every
     ``sample_dt`` [s]; returns (simulator, RunResult). ``progress(done, total)`` is called as it
-    goes; ``origins`` names where each override came from (for error messages)."""
+    goes; ``origins`` names where each override came from (for error messages);
+    ``on_samples(block)`` gets the sample rows as they are made, ``keep_samples=False`` keeps none
+    in the result (constant memory for any duration)."""
     values = load_scene(scene, overrides, origins)
     sim = make_simulator(values)
-    return sim, sim.run(duration, sample_dt, progress=progress)
+    return sim, sim.run(duration, sample_dt, progress=progress, on_samples=on_samples,
+                        keep_samples=keep_samples)
+
+
+class CsvWriter:
+    """The CSV of ``cvt-sim run --csv``, written block by block (``add(block)``), so that a run
+    of any length streams to disk in constant memory. A context manager; ``rows`` counts."""
+
+    def __init__(self, path):
+        self._file = open(path, 'w')   # noqa: SIM115 — closed by close() / __exit__
+        self._file.write(','.join(CSV_COLUMNS) + '\n')
+        self.rows = 0
+
+    def add(self, block):
+        np.savetxt(self._file, block[:, :len(CSV_COLUMNS)], delimiter=',', fmt=_CSV_FORMATS)
+        self.rows += len(block)
+
+    def close(self):
+        self._file.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc_info):
+        self.close()
 
 
 def write_csv(path, samples):
     """The CSV columns of ``cvt-sim run`` (output.CSV_COLUMNS, in order) with a header line."""
-    np.savetxt(path, samples[:, :len(CSV_COLUMNS)], delimiter=',', fmt=_CSV_FORMATS,
-               header=','.join(CSV_COLUMNS), comments='')
+    with CsvWriter(path) as csv:
+        csv.add(samples)
 
 
-def _ratio(w4, w1):
-    """Mean ratio ω4/ω1, or nan when the crank is (on average) at rest."""
-    m1 = float(np.mean(w1))
-    scale = float(np.max(np.abs(w1))) if len(w1) else 0.0
-    if not math.isfinite(m1) or abs(m1) <= RATIO_DEFINED_BELOW * max(scale, 1e-300):
-        return math.nan
-    return float(np.mean(w4)) / m1
+class SampleStatistics:
+    """The figures of the summary that come from the samples, accumulated block by block (constant
+    memory): mean crank and output speed over the run and over its last quarter (from
+    ``t_tail``), peak clutch torque and peak |twist| over the whole run, start-up included."""
+
+    def __init__(self, t_tail):
+        self.t_tail = t_tail
+        self.count = self.tail_count = 0
+        self.sum_w1 = self.sum_w4 = self.tail_w1 = self.tail_w4 = 0.0
+        self.max_abs_w1 = self.tail_max_abs_w1 = 0.0
+        self.peak_clutch_torque = self.peak_twist = -math.inf
+
+    def add(self, block):
+        w1, w4 = block[:, COL['omega1']], block[:, COL['omega4']]
+        tail = block[:, COL['t']] >= self.t_tail
+        self.count += len(block)
+        self.sum_w1 += float(np.sum(w1))
+        self.sum_w4 += float(np.sum(w4))
+        self.max_abs_w1 = max(self.max_abs_w1, float(np.max(np.abs(w1), initial=0.0)))
+        if tail.any():
+            self.tail_count += int(np.count_nonzero(tail))
+            self.tail_w1 += float(np.sum(w1[tail]))
+            self.tail_w4 += float(np.sum(w4[tail]))
+            self.tail_max_abs_w1 = max(self.tail_max_abs_w1, float(np.max(np.abs(w1[tail]))))
+        clutch_torque, twist = block[:, COL['clutch_torque']], np.abs(block[:, COL['twist']])
+        self.peak_clutch_torque = max(self.peak_clutch_torque,
+                                      float(np.max(clutch_torque, initial=-math.inf)))
+        self.peak_twist = max(self.peak_twist, float(np.max(twist, initial=-math.inf)))
+
+    @staticmethod
+    def _ratio(sum_w4, sum_w1, max_abs_w1):
+        """Mean ratio ω4/ω1 (ratio of the means), nan when the crank is (on average) at rest."""
+        if not (math.isfinite(sum_w1) and abs(sum_w1) > RATIO_DEFINED_BELOW * max_abs_w1
+                and max_abs_w1 > 0.0):
+            return math.nan
+        return sum_w4 / sum_w1
+
+    @property
+    def mean_ratio(self):
+        return self._ratio(self.sum_w4, self.sum_w1, self.max_abs_w1)
+
+    @property
+    def mean_ratio_tail(self):
+        return self._ratio(self.tail_w4, self.tail_w1, self.tail_max_abs_w1)
 
 
-def summarize(result, duration):
-    """The numbers a person checks first after a run (dict of floats and ints), and the warnings
-    that qualify them (``warnings``: list of text; a figure that is not meaningful is nan)."""
-    c = result.column
-    w1, w4 = c('omega1'), c('omega4')
-    tail = slice(len(w1) - max(1, len(w1) // 4), None)   # the last quarter of the run
+def statistics_of(samples, t_tail):
+    stats = SampleStatistics(t_tail)
+    stats.add(samples)
+    return stats
+
+
+def tail_start(result_t0, duration):
+    """Where the summary's "last quarter" starts [s]."""
+    return result_t0 + 0.75 * duration
+
+
+def summarize(result, duration, statistics=None):
+    """The numbers a person checks first after a run (dict of floats and ints) and the warnings
+    that qualify them (``warnings``: one line each; a figure that is not meaningful is nan).
+    ``statistics``: the SampleStatistics of a streamed run (default: from ``result.samples``)."""
+    stats = statistics or statistics_of(result.samples, tail_start(result.samples[0, 0],
+                                                                   duration))
     switches = [s for s in result.switches if s.kind != 'graze']
     summary = {
         'duration_s': duration,
-        'mean_ratio': _ratio(w4, w1),
-        'mean_ratio_last_quarter': _ratio(w4[tail], w1[tail]),
-        'mean_crank_speed_rad_s': float(np.mean(w1[tail])),
-        'mean_output_speed_rad_s': float(np.mean(w4[tail])),
+        'mean_ratio': stats.mean_ratio,
+        'mean_ratio_last_quarter': stats.mean_ratio_tail,
+        'mean_crank_speed_rad_s': stats.tail_w1 / max(stats.tail_count, 1),
+        'mean_output_speed_rad_s': stats.tail_w4 / max(stats.tail_count, 1),
         'switches': len(switches),
         'grazing_contacts': len(result.switches) - len(switches),
-        'peak_clutch_torque_Nm': float(np.max(c('clutch_torque'))),
-        'peak_twist_rad': float(np.max(np.abs(c('twist')))),
+        'peak_clutch_torque_Nm': stats.peak_clutch_torque,
+        'peak_twist_rad': stats.peak_twist,
         'energy_residual_J': float(result.energy['residual']),
         'energy_residual_relative': float(result.energy['relative_residual']),
         'work_motor_J': float(result.energy['work_motor']),
@@ -70,7 +145,7 @@ def summarize(result, duration):
         'wall_time_s': result.wall_time,
         'real_time_factor': duration / result.wall_time if result.wall_time > 0 else math.inf,
     }
-    warnings = []
+    warnings = list(getattr(result, 'diagnostics', {}).get('warnings', ()))
     if math.isnan(summary['mean_ratio']):
         warnings.append('the crank is at rest on average: no ratio ω4/ω1 is defined')
     relative = summary['energy_residual_relative']
@@ -82,4 +157,5 @@ def summarize(result, duration):
     return summary
 
 
-__all__ = ['RATIO_DEFINED_BELOW', 'RESIDUAL_SUSPECT', 'run_scene', 'summarize', 'write_csv']
+__all__ = ['RATIO_DEFINED_BELOW', 'RESIDUAL_SUSPECT', 'CsvWriter', 'SampleStatistics',
+           'run_scene', 'statistics_of', 'summarize', 'tail_start', 'write_csv']
