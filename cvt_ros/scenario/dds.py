@@ -18,12 +18,15 @@ control period. The protocol (docs/node.md, "Lockstep"):
 
 With ``controller_cmd`` the controller is an external process (e.g. ``cvt_speed_controller``),
 started with ROS_DOMAIN_ID of the run and CVT_SETPOINT_FILE naming a CSV of the set point per
-control period (the reference controller's ``setpoint_file``); the harness then only watches:
-it records each sample and sends the load schedule. ``realtime``: the node runs against the wall
+control period (the reference controller's ``setpoint_file``); it steps the node itself, the
+harness watches the newest samples, sends the load schedule when it sees a change come due
+(so load changes are not reproducible to the period with an external controller) and takes
+the whole trace from the node's recording. ``realtime``: the node runs against the wall
 clock at that real-time factor (HIL rehearsal), the harness reacts to the newest sample.
 """
 import os
 import signal
+import struct
 import subprocess
 import sys
 import tempfile
@@ -88,7 +91,7 @@ class DdsPlant:
 
     @property
     def skips_periods(self):
-        return bool(self.realtime)
+        return bool(self.realtime or self.external)
 
     def __init__(self, scenario, controller_cmd=None, realtime=None, domain=None, log=None):
         self.period = scenario.control_period
@@ -103,8 +106,11 @@ class DdsPlant:
         # harness switches time_mode (a live parameter) and the wall clock takes over
         params_file = os.path.join(self.tmp.name, 'scene.yaml')
         params = node_parameters(plant_values(scenario), self.period, 'lockstep', realtime or 1.0)
-        self.recording = os.path.join(self.tmp.name, 'run.mcap') if realtime else ''
-        params['record.path'] = self.recording   # realtime: the whole trace comes from here
+        # realtime, external controller: the harness sees the newest samples only; the whole
+        # trace comes from the node's own recording
+        self.recording = os.path.join(self.tmp.name, 'run.mcap') if (realtime or controller_cmd) \
+            else ''
+        params['record.path'] = self.recording
         write_params_file(params_file, params)
         self.env = dict(os.environ, ROS_DOMAIN_ID=str(self.lease.domain),
                         ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
@@ -133,20 +139,15 @@ class DdsPlant:
         self.switch_states = []    # clutch_engaged values not yet taken
         self.node.create_subscription(JointState, STATE, self.samples.append,
                                       interface.state_qos())
+        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+        every = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
+                           durability=DurabilityPolicy.VOLATILE)   # each message is a switch
         self.node.create_subscription(Bool, interface.CLUTCH_ENGAGED,
-                                      lambda m: self.switch_states.append(bool(m.data)),
-                                      interface.clutch_qos())
+                                      lambda m: self.switch_states.append(bool(m.data)), every)
         self.load_publisher = self.node.create_publisher(Float64, interface.LOAD_TORQUE_CMD,
                                                          interface.command_qos())
         self.crank_publisher = self.node.create_publisher(Float64, interface.CRANK_LENGTH_CMD,
                                                           interface.command_qos())
-        self.observed_commands = []   # external controller: (sample index, value)
-        if self.external:
-            self.node.create_subscription(
-                Float64, interface.CRANK_LENGTH_CMD,
-                lambda m: self.observed_commands.append((self._index - 1, m.data)),
-                interface.command_qos())
-        self._index = 0
         self._live = False
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
@@ -195,13 +196,11 @@ class DdsPlant:
         row, ns = row_from_state(msg, self._order, self._actuator)
         switches = []
         for engaged in self.switch_states:
-            if engaged != self._engaged:
-                if self._engaged is not None:
-                    switches.append((row[COL['t']], engaged))   # time: the period's end
-                self._engaged = engaged
+            if self._engaged is not None and engaged != self._engaged:
+                switches.append((row[COL['t']], engaged))   # time: the period's end
+            self._engaged = engaged
         self.switch_states.clear()
         self._last_ns = ns
-        self._index += 1
         return row, switches
 
     @staticmethod
@@ -214,6 +213,7 @@ class DdsPlant:
                          and self.load_publisher.get_subscription_count() > 0,
                          START_TIMEOUT_S, "cvt_node's command subscriptions")
         row, _ = self._next_sample()
+        self._engaged = bool(row[COL['engaged']])    # switches: messages that change it
         self._command = float(row[COL['crank_length']])
         if self.external:
             self._start_controller()
@@ -275,11 +275,14 @@ class DdsPlant:
         from ..recording.reader import read_messages
         self._stop(self.proc)
         end_ns = round(t_end * 1e9)
-        rows, switches, engaged = [], [], None
-        for m in read_messages(self.recording, ['/joint_states', '/clutch_engaged'],
-                               strict=False):
+        rows, switches, engaged, commands = [], [], None, []
+        topics = ['/joint_states', '/clutch_engaged', '/crank_length_cmd']
+        for m in read_messages(self.recording, topics, strict=False):
             if m.log_time_ns > end_ns:
                 break
+            if m.topic == '/crank_length_cmd':   # logged at the sample it answered
+                commands.append((m.log_time_ns * 1e-9, struct.unpack_from('<d', m.data, 4)[0]))
+                continue
             if m.topic == '/clutch_engaged':
                 state = m.data[-1] == 1
                 if engaged is not None and state != engaged:   # (repeats are not switches)
@@ -288,7 +291,7 @@ class DdsPlant:
                 continue
             rows.append(row_from_state(deserialize_message(m.data, JointState), self._order,
                                        self._actuator)[0])
-        return np.array(rows), switches
+        return np.array(rows), switches, (commands if self.external else None)
 
     @staticmethod
     def _stop(proc):

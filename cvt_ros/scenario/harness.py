@@ -186,19 +186,17 @@ def _loop(scenario, controller, plant, controller_name, progress):
     except KeyboardInterrupt:
         error = f"interrupted at t = {k * dt:.6f} s (period {k})"
     wall = time.perf_counter() - wall0
-    for i, value in getattr(plant, 'observed_commands', ()):   # an external controller's
-        if i <= k:
-            commands[i] = value
     keep = np.flatnonzero(np.isfinite(rows[:k + 1, 0]))   # (realtime: the samples seen)
     samples = rows[keep]
     recorded = plant.recorded_samples(k * dt) if hasattr(plant, 'recorded_samples') else None
     if recorded is not None and len(recorded[0]):
         # realtime: the device's own recording has every period; the controller saw `keep`
-        samples, switches = recorded
+        samples, switches, external = recorded
         keep = np.clip(np.round(samples[:, 0] / dt).astype(int), 0, n)
-        seen = commands
-        commands = np.full(n + 1, np.nan)
-        commands[keep] = seen[keep]
+        if external is not None:   # what an external controller sent, at the sample it answered
+            commands = np.full(n + 1, np.nan)
+            for t, value in external:
+                commands[min(int(round(t / dt)), n)] = value
     return ScenarioRun(scenario=scenario, backend=plant.name, controller=controller_name,
                        samples=samples, setpoint=setpoint[keep], load=load[keep],
                        commands=commands[keep], switches=switches, clamped=clamped,
