@@ -6,14 +6,13 @@
 #   ./run.sh test     the test suite (what CI runs)
 #   ./run.sh bench    the benchmarks (writes BENCHMARKS.md and plots)
 #   ./run.sh cvt-sim ARGS...   any cvt-sim command inside the environment
-#   ./run.sh ros2 ARGS...      the ROS 2 command line (installed from the vendored ros2cli sources
-#                              when they are found: $CVT_ROS2CLI_VENDOR, or ../shared/vendor/ros2cli)
+#   ./run.sh ros2 ARGS...      the ROS 2 command line (upstream ros2cli, vendored in third_party/)
 set -euo pipefail
 cd "$(dirname "$0")"
 ROOT=$PWD
 VENV=$ROOT/.venv
-ROS2CLI_VENDOR=${CVT_ROS2CLI_VENDOR:-$ROOT/../shared/vendor/ros2cli}
-SETUP_STEPS=3   # bump when setup() changes what it does: existing venvs are set up again
+ROS2CLI_VENDOR=${CVT_ROS2CLI_VENDOR:-$ROOT/third_party/ros2cli}
+SETUP_STEPS=4   # bump when setup() changes what it does: existing venvs are set up again
 
 python_bin() {
     for candidate in "${PYTHON:-}" python3.11 python3; do
@@ -91,8 +90,8 @@ case "$cmd" in
     cvt-sim) exec "$VENV/bin/python" -m cvt_ros "$@" ;;
     ros2)
         if [ ! -x "$VENV/bin/ros2" ]; then
-            echo "run.sh: no ros2 command in $VENV: the vendored ros2cli sources were not found" \
-                 "(set CVT_ROS2CLI_VENDOR to their folder and run ./run.sh again)" >&2; exit 2
+            echo "run.sh: no ros2 command in $VENV: the ros2cli sources were not found in" \
+                 "$ROS2CLI_VENDOR (set CVT_ROS2CLI_VENDOR to their folder)" >&2; exit 2
         fi
         exec "$VENV/bin/python" "$VENV/bin/ros2" "$@" ;;
     *) echo "usage: ./run.sh demo | test | bench | cvt-sim ARGS... | ros2 ARGS..." >&2; exit 2 ;;
