@@ -19,9 +19,7 @@ import math
 import sys
 import time
 
-import rclpy
 from geometry_msgs.msg import Point
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from sensor_msgs.msg import JointState
 from std_msgs.msg import ColorRGBA
@@ -132,16 +130,8 @@ class LinkageMarkersNode(Node):
 
 
 def main(args=None):
-    rclpy.init(args=args)
-    node = LinkageMarkersNode()
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
+    from .node import spin
+    return spin(LinkageMarkersNode, args)
 
 
 if __name__ == '__main__':

@@ -156,12 +156,14 @@ class SpeedControllerNode(Node):
             self.crank_length_cmd_publisher.publish(self._command)
 
 
-def main(args=None):
+def spin(make_node, args=None):
+    """Run the node ``make_node()`` builds until SIGINT / SIGTERM; the exit code (2 when it
+    refused its parameters). The main of every controller-kit node."""
     rclpy.init(args=args)
     try:
-        node = SpeedControllerNode()
+        node = make_node()
     except ValueError as exc:
-        print(f"{NODE_NAME}: error: {exc}", file=sys.stderr)
+        print(f"{make_node.__name__}: error: {exc}", file=sys.stderr)
         rclpy.try_shutdown()
         return 2
     try:
@@ -172,6 +174,10 @@ def main(args=None):
         node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def main(args=None):
+    return spin(SpeedControllerNode, args)
 
 
 if __name__ == '__main__':

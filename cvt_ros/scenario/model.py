@@ -18,7 +18,6 @@ A scenario file (YAML; every key but ``scene``, ``duration`` and ``setpoint`` op
 
 Schedules: cvt_ros/scenario/schedule.py. Every error names the file, the key and the value.
 """
-import math
 import os
 import sys
 from dataclasses import dataclass, field, fields
@@ -28,6 +27,7 @@ from ..control.speed_pi import SpeedPIGains
 from ..physics.linkage import grashof_bound
 from ..scene import SceneError, load_scene
 from ..yaml_file import InputFileError, read_yaml
+from .checks import number
 from .realism import ActuatorSpec, RealismError, SensorSpec, parse_actuator, parse_sensors
 from .schedule import Schedule, ScheduleError, parse_schedule
 
@@ -112,17 +112,8 @@ def resolve_scenario(name):
 
 
 def _number(doc, key, low, high, default, where, integer=False, open_low=False):
-    value = doc.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ScenarioError(f"{where}: {key}: expected a number, got {value!r}")
-    if not math.isfinite(value):
-        raise ScenarioError(f"{where}: {key}: {value!r} is not a finite number")
-    if integer and value != int(value):
-        raise ScenarioError(f"{where}: {key}: expected a whole number, got {value!r}")
-    if value < low or value > high or (open_low and value <= low):
-        raise ScenarioError(f"{where}: {key}: {value:g} is outside "
-                            f"{'(' if open_low else '['}{low:g}, {high:g}]")
-    return int(value) if integer else float(value)
+    return number(doc.get(key, default), f"{where}: {key}", low, high, open_low=open_low,
+                  integer=integer, error=ScenarioError)
 
 
 def load_scenario(path, overrides=None):

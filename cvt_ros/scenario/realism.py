@@ -24,6 +24,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from ..control.measurement import Measurement
+from .checks import number
 
 TWO_PI = 2.0 * math.pi
 NOISE_BLOCK = 4096      # periods of noise drawn at once (same numbers whatever the block size)
@@ -68,15 +69,7 @@ _SENSOR_LIMITS = {'position_noise': 10.0, 'velocity_noise': 1e4, 'effort_noise':
 
 
 def _value(value, key, low, high, integer=False):
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise RealismError(f"{key}: expected a number, got {value!r}")
-    if not math.isfinite(value):
-        raise RealismError(f"{key}: {value!r} is not a finite number")
-    if integer and float(value) != int(value):
-        raise RealismError(f"{key}: expected a whole number, got {value!r}")
-    if not low <= value <= high:
-        raise RealismError(f"{key}: {value:g} is outside [{low:g}, {high:g}]")
-    return int(value) if integer else float(value)
+    return number(value, key, low, high, integer=integer, error=RealismError)
 
 
 def parse_sensors(body, key, period):

@@ -27,6 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .checks import number
+
 KINDS = ('step', 'ramp', 'sine', 'profile')
 MAX_PROFILE_ROWS = 1_000_000
 
@@ -95,18 +97,7 @@ class Schedule:
 
 # ------------------------------------------------------------------------------- parsing
 def _number(value, key, low=-math.inf, high=math.inf, unit='', open_low=False):
-    """A finite number in [low, high] (or (low, high] with ``open_low``), else ScheduleError."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ScheduleError(f"{key}: expected a number{f' [{unit}]' if unit else ''}, got "
-                            f"{value!r}")
-    value = float(value)
-    if not math.isfinite(value):
-        raise ScheduleError(f"{key}: {value!r} is not a finite number")
-    if value < low or value > high or (open_low and value <= low):
-        lo = '(' if open_low else '['
-        raise ScheduleError(f"{key}: {value:g}{f' {unit}' if unit else ''} is outside "
-                            f"{lo}{low:g}, {high:g}]")
-    return value
+    return number(value, key, low, high, unit=unit, open_low=open_low, error=ScheduleError)
 
 
 def _only_keys(body, allowed, key):
