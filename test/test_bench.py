@@ -13,7 +13,9 @@ TINY = ['--quick', '--scenes', 'paper', '--duration', '0.2', '--rtols', '1e-5', 
         '--scipy-rtols', '1e-5', '1e-7', '--steps', '5e-4', '2e-4',
         '--hard-scenes', 'paper', 'grazing',
         '--hard-duration', '0.2', '--stiffness', '500', '--stability-duration', '0.2',
-        '--long-duration', '2']
+        '--long-duration', '2', '--steady-span', '1', '--steady-scenes', 'paper',
+        '--scaling-spans', '1', '2', '--scaling-stiffnesses', '1e3', '1e6',
+        '--stiffness-span', '0.05', '--sweep-span', '0.05']
 
 FOREIGN = """# Benchmarks
 
@@ -82,7 +84,8 @@ def test_report_states_command_machine_and_versions(report):
 
 def test_report_has_every_section_once_and_keeps_the_others(report):
     text, _ = report
-    for title in ('## Default settings', '## Work-precision', '### Scene `paper`',
+    for title in ('## Speed at steady state', '## Scaling', '## Default settings',
+                  '## Work-precision', '### Scene `paper`',
                   '## Speed-up at equal error', '## Numerical stability on hard cases',
                   '## Stability limit of fixed-step RK4', '## Long run', '## Known defects',
                   '## ROS node', '## Recording'):
@@ -133,6 +136,19 @@ def test_stability_limit_and_long_run_rows(report):
     long = next(t for t in tables(text) if t[0][0] == 'run')
     for row in long[1]:
         assert number(row[1]) > 0.0 and math.isfinite(number(row[4]))
+
+
+def test_steady_state_and_scaling_rows(report):
+    text, _ = report
+    steady = next(t for t in tables(text) if t[0][:2] == ['scene', 'wall [ms]'])
+    assert [r[0] for r in steady[1]] == ['paper']
+    wall, scipy_wall, floor_ratio = (number(steady[1][0][i]) for i in (1, 4, 9))
+    assert wall > 0.0 and scipy_wall > 0.0 and floor_ratio >= 1.0   # the floor is a floor
+    times = next(t for t in tables(text) if t[0][0] == 'simulated [s]')
+    assert [number(r[0]) for r in times[1]] == [1.0, 2.0]
+    sweep = next(t for t in tables(text) if t[0][:2] == ['scene', 'variant'])
+    assert len(sweep[1]) == 4 * len(set(r[0] for r in sweep[1]))
+    assert all(r[3] == 'same' for r in sweep[1])
 
 
 def test_plots_are_pngs_linked_from_the_report(report):

@@ -2,7 +2,8 @@
 
 ``cvt-sim bench [OPTIONS]`` runs the sections (work-precision and the defaults, hard cases, the
 RK4 stability limit, the long run, the known-defect checks); ``cvt-sim bench node ARGS`` the ROS
-node's benchmark (cvt_ros.bench.node); ``cvt-sim bench fidelity ARGS`` the fidelity table.
+node's benchmark (cvt_ros.bench.node); ``cvt-sim bench fidelity ARGS`` the fidelity table;
+``cvt-sim bench sweep ARGS`` the Dask campaign benchmark (cvt_ros.bench.sweep).
 """
 import argparse
 import importlib
@@ -17,8 +18,19 @@ from .hard_cases import HARD_SCENES, hard_cases, section_hard
 from .long_run import long_run, section_long
 from .plots import plot_all
 from .report import OWN_TITLE, environment, write_report
+from .scaling import (
+    QUICK_SPANS,
+    SPANS,
+    event_sweep,
+    section_scaling,
+    stiffness_scaling,
+    time_scaling,
+)
+from .scaling import STIFFNESSES as SCALING_STIFFNESSES
 from .speedup import ERROR_LEVELS, default_settings, section_default, section_speedup
 from .stability import STIFFNESSES, section_limits, stability_limits
+from .steady_state import SCENES as STEADY_SCENES
+from .steady_state import STEADY_SPAN, section_steady, steady_state
 from .work_precision import (
     CHECK_METHOD,
     DEFAULT_DURATION,
@@ -35,12 +47,11 @@ from .work_precision import (
     work_precision,
 )
 
-SECTIONS = ('work', 'hard', 'stability', 'long', 'defects')
-SUBCOMMANDS = ('node', 'fidelity')   # modules of this package with their own main(argv)
+SECTIONS = ('work', 'steady', 'scaling', 'events', 'hard', 'stability', 'long', 'defects')
+SUBCOMMANDS = ('node', 'fidelity', 'sweep')   # modules of this package with their own main(argv)
 
 
-def page(cfg, env, results, default, hard, limits, long, defects, plots, command,
-           wall_total):
+def page(cfg, env, parts, plots, command, wall_total):
     L = [OWN_TITLE, '']
     L += [f'Made by `{command}` in {wall_total / 60:.1f} min (the numbers and plots below; '
           f'`cvt-sim bench` runs the same module).', '']
@@ -67,6 +78,14 @@ def page(cfg, env, results, default, hard, limits, long, defects, plots, command
           "against the other variant, against itself at rtol 1e-12, and against scipy "
           f"{CHECK_METHOD} (solve_ivp with events, an independent stepper and event locator) at "
           "rtol 1e-12, atol 1e-14; the agreement is tabulated per scene.", '']
+    results, default = parts['work'], parts['default']
+    hard, limits, long, defects = (parts['hard'], parts['stability'], parts['long'],
+                                   parts['defects'])
+    if parts['steady']:
+        L += section_steady(parts['steady'], parts['steady_load'])
+    if parts['scaling'] or parts['events']:
+        times, stiffness = parts['scaling'] or ([], [])
+        L += section_scaling(times, stiffness, parts['events'], cfg)
     if default:
         L += section_default(default, results, cfg, command)
     L += ['## Work-precision', '']
@@ -119,6 +138,12 @@ class Config:
     long_duration: float
     long_marks: tuple
     default_repeats: int
+    steady_scenes: list
+    steady_span: float
+    scaling_spans: list
+    scaling_stiffnesses: list
+    stiffness_span: float
+    sweep_span: float
     warm: bool = True
 
     def duration_for(self, name):
@@ -129,8 +154,10 @@ def parse_args(argv):
     ap = argparse.ArgumentParser(
         prog='cvt-sim bench', description=__doc__.split('\n\n')[0],
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog='sections: work (work-precision, default settings), hard (hard cases), '
-               'stability (RK4 step limit), long (1 h run), defects (known-defect checks).\n'
+        epilog='sections: work (work-precision, default settings), steady (speed at steady '
+               'state vs scipy and the RHS floor), scaling (time, stiffness), events (switch '
+               'counts at every rtol), hard (hard cases), stability (RK4 step limit), long '
+               '(1 h run), defects (known-defect checks).\n'
                'other benchmarks: cvt-sim bench node --help (the ROS node), '
                'cvt-sim bench fidelity --help (each fidelity against the full model)')
     ap.add_argument('--quick', action='store_true', help='CI-sized: short spans, fewer points')
@@ -159,6 +186,18 @@ def parse_args(argv):
     ap.add_argument('--stability-duration', type=float, default=1.0)
     ap.add_argument('--long-duration', type=float, default=None,
                     help='simulated span of the long run [s] (default 3600, 60 with --quick)')
+    ap.add_argument('--steady-scenes', nargs='+', default=None, metavar='SCENE',
+                    help=f"steady-state speed scenes (default {' '.join(STEADY_SCENES)})")
+    ap.add_argument('--steady-span', type=float, default=None,
+                    help=f'timed steady-state span [s] (default {STEADY_SPAN:g}, 20 with --quick)')
+    ap.add_argument('--scaling-spans', nargs='+', type=float, default=None,
+                    help='simulated spans of the time scaling [s] (default 1 … 3600)')
+    ap.add_argument('--scaling-stiffnesses', nargs='+', type=float, default=None,
+                    help='shaft stiffnesses of the stiffness scaling [N·m/rad] (1e3 … 1e7)')
+    ap.add_argument('--stiffness-span', type=float, default=None,
+                    help='simulated span per stiffness [s] (default 1, 0.2 with --quick)')
+    ap.add_argument('--sweep-span', type=float, default=None,
+                    help='simulated span of the switch-count sweep [s] (default 5, 1 with --quick)')
     return ap.parse_args(argv)
 
 
@@ -184,7 +223,13 @@ def make_config(a):
         stability_formulations=('reduced', 'paper'),
         long_duration=long_duration,
         long_marks=(10.0, 30.0) if q else (60.0, 600.0, 2040.0),
-        default_repeats=5 if q else 20)
+        default_repeats=5 if q else 20,
+        steady_scenes=a.steady_scenes or list(STEADY_SCENES),
+        steady_span=a.steady_span or (20.0 if q else STEADY_SPAN),
+        scaling_spans=a.scaling_spans or list(QUICK_SPANS if q else SPANS),
+        scaling_stiffnesses=a.scaling_stiffnesses or list(SCALING_STIFFNESSES),
+        stiffness_span=a.stiffness_span or (0.2 if q else 1.0),
+        sweep_span=a.sweep_span or (1.0 if q else 5.0))
 
 
 def main(argv=None):
@@ -199,24 +244,32 @@ def main(argv=None):
 
     env = environment()
     t0 = time.perf_counter()
-    results, default, hard, limits, long, defects = [], None, None, None, None, None
+    parts = dict.fromkeys(SECTIONS + ('default', 'steady_load'))
+    parts['work'] = []
     if 'work' in a.sections:
-        results = work_precision(cfg, log)
-        default = default_settings(cfg, results, log)
+        parts['work'] = work_precision(cfg, log)
+        parts['default'] = default_settings(cfg, parts['work'], log)
+    if 'steady' in a.sections:
+        load0 = os.getloadavg()[0]
+        parts['steady'] = steady_state(cfg, log)
+        parts['steady_load'] = f"{load0:.2f} at its start, {os.getloadavg()[0]:.2f} at its end"
+    if 'scaling' in a.sections:
+        parts['scaling'] = (time_scaling(cfg, log), stiffness_scaling(cfg, log))
+    if 'events' in a.sections:
+        parts['events'] = event_sweep(cfg, log)
     if 'hard' in a.sections:
-        hard = hard_cases(cfg, log)
+        parts['hard'] = hard_cases(cfg, log)
     if 'stability' in a.sections:
-        limits = stability_limits(cfg, log)
+        parts['stability'] = stability_limits(cfg, log)
     if 'long' in a.sections:
-        long = long_run(cfg, log)
+        parts['long'] = long_run(cfg, log)
     if 'defects' in a.sections:
-        defects = known_defects(log)
+        parts['defects'] = known_defects(log)
     out = Path(a.out)
-    plots = plot_all(results, limits, default, a.plots, cfg)
+    plots = plot_all(parts['work'], parts['stability'], parts['default'], a.plots, cfg)
     rel = {k: os.path.relpath(v, out.resolve().parent) for k, v in plots.items()}
     command = 'cvt-sim bench' + (' ' + ' '.join(argv) if argv else '')
-    text = page(cfg, env, results, default, hard, limits, long, defects, rel, command,
-                time.perf_counter() - t0)
+    text = page(cfg, env, parts, rel, command, time.perf_counter() - t0)
     write_report(out, text)
     log(f"wrote {out} and {len(plots)} plots in {a.plots} "
         f"({(time.perf_counter() - t0) / 60:.1f} min)")

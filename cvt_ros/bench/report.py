@@ -15,9 +15,9 @@ ROOT = Path(__file__).resolve().parents[2]
 OWN_TITLE = '# Benchmarks'
 
 
-OWN_SECTIONS = ('Default settings', 'Work-precision', 'Speed-up at equal error',
-                'Numerical stability on hard cases', 'Stability limit of fixed-step RK4',
-                'Long run')
+OWN_SECTIONS = ('Speed at steady state', 'Scaling', 'Default settings', 'Work-precision',
+                'Speed-up at equal error', 'Numerical stability on hard cases',
+                'Stability limit of fixed-step RK4', 'Long run', 'Known defects')
 
 
 def fmt(x, digits=3):

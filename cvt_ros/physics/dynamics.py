@@ -76,7 +76,9 @@ from .layout import (
     Z_W_DAMPING,
     Z_W_LOAD,
 )
-from .linkage import constraint_partials, kinematics, rocker_angle
+from .linkage import constraint_partials, kinematics
+
+TWO_PI = 2.0 * math.pi
 
 
 @kernel
@@ -256,8 +258,10 @@ def project(t, y, mode, P, ACT):
     """
     a, ad, _ = crank_actuator(t, ACT)
     if P[P_FORMULATION] != FORMULATION_PAPER:
-        _, _, u, _, ga, _, _ = kinematics(y[PHI1], a, P[P_B], P[P_D], P[P_H], P[P_SIGMA])
-        y[PHI2] = rocker_angle(y[PHI1], a, P[P_B], P[P_D], P[P_H], P[P_SIGMA])
+        c2, s2, u, _, ga, _, _ = kinematics(y[PHI1], a, P[P_B], P[P_D], P[P_H], P[P_SIGMA])
+        # φ2 from its cosine and sine, on the branch of the integrated φ2 (no inverse cosine)
+        phi2 = math.atan2(s2, c2)
+        y[PHI2] = phi2 + TWO_PI * math.floor((y[PHI2] - phi2) / TWO_PI + 0.5)
         y[OMEGA2] = u * y[OMEGA1] + ga * ad
     rigid = P[P_RIGID] > 0.0
     if mode == ENGAGED:

@@ -28,18 +28,19 @@ class ReferenceResult:
 
 
 def solve_reference(values, t_end, method='DOP853', rtol=1e-12, atol=1e-14, t_eval=None,
-                    max_switches=100000):
-    """Integrate a scene from its initial state to t_end [s] with scipy; returns the final state,
-    the switch times and modes, and the number of RHS evaluations."""
-    sim = Simulator(values)  # consistent initial state and mode, same P and actuator
+                    max_switches=100000, start=None):
+    """Integrate a scene from its initial state (or from the state of the Simulator ``start``,
+    at its time) to t_end [s] with scipy; returns the final state, the switch times and modes,
+    and the number of RHS evaluations."""
+    sim = start if start is not None else Simulator(values)  # consistent state and mode
     P, ACT = sim.P, sim.ACT
     y = sim.y.copy()
     mode = int(sim.ms[0])
-    t = 0.0
+    t = sim.t
     dy = np.empty(L.N_STATE)
     aux = np.empty(L.N_AUX)
     scratch = np.empty(L.N_STATE)
-    result = ReferenceResult(t=0.0, y=y)
+    result = ReferenceResult(t=t, y=y)
     rows = []
     wall0 = time.perf_counter()
 

@@ -1,0 +1,146 @@
+"""Speed at steady state (issue 12): the defaults against scipy DOP853 at rtol 1e-4 and against the
+floor of their own right-hand-side evaluations, all in one run.
+
+Each scene runs 2 s from rest (start-up, not timed), then STEADY_SPAN s as ``cvt-sim run`` does
+(0.1 s samples, the samples streamed, not kept). From the same state at t = 2 s: scipy DOP853 at
+rtol 1e-4 (atol 1e-6, events on the same guards, solver/reference.py), and the project at
+rtol 1e-10 as the reference of both φ4 errors. The RHS floor is the solver's own count of RHS
+evaluations in the timed window times the cost of one evaluation, measured in the same run by a
+compiled loop over the run's own states (1 ms samples, both clutch modes in their proportion).
+"""
+import math
+import time
+
+import numpy as np
+
+from ..physics import layout as L
+from ..physics.compiled import kernel
+from ..physics.dynamics import rhs
+from ..scene import load_scene
+from ..solver import hybrid as H
+from ..solver.output import COL
+from ..solver.reference import solve_reference
+from ..solver.simulator import Simulator
+from .report import fmt, table
+
+SCENES = ('paper', 'conveyor', 'stiff_shaft')
+WARM = 2.0            # [s] from rest before the timed window
+STEADY_SPAN = 200.0   # [s] timed
+SAMPLE_DT = 0.1       # [s]
+TARGETS = {'paper': 150.0, 'conveyor': 150.0, 'stiff_shaft': 100.0}   # × scipy DOP853 (issue 12)
+FLOOR_TARGET = 2.5
+REJECT_TARGET = 0.5
+TIGHT = {'solver.rtol': 1e-10, 'solver.atol': 1e-12}
+
+
+@kernel
+def _rhs_loop(states, modes, P, ACT, repeats):
+    dy = np.empty(states.shape[1])
+    aux = np.empty(L.N_AUX)
+    acc = 0.0
+    for _ in range(repeats):
+        for i in range(states.shape[0]):
+            rhs(0.0, states[i], modes[i], P, ACT, dy, aux)
+            acc += dy[L.OMEGA1]
+    return acc
+
+
+def _states(samples):
+    """State vectors (y layout) from sample rows."""
+    y = np.zeros((len(samples), L.N_STATE))
+    for state, column in ((L.PHI1, 'phi1'), (L.OMEGA1, 'omega1'), (L.PHI2, 'phi2'),
+                          (L.OMEGA2, 'omega2'), (L.TWIST, 'twist'), (L.OMEGA3, 'omega3'),
+                          (L.PHI4, 'phi4'), (L.OMEGA4, 'omega4')):
+        y[:, state] = samples[:, COL[column]]
+    return y, samples[:, COL['engaged']].astype(np.int64)
+
+
+def rhs_cost(values, n_calls):
+    """Seconds per RHS evaluation on this scene's steady-state states (both modes)."""
+    sim = Simulator(values)
+    sim.advance(WARM)
+    states, modes = _states(sim.run(2.0, 1e-3).samples)
+    _rhs_loop(states[:4], modes[:4], sim.P, sim.ACT, 1)
+    repeats = max(1, int(n_calls) // len(states))
+    best = math.inf
+    for _ in range(3):
+        t0 = time.perf_counter()
+        _rhs_loop(states, modes, sim.P, sim.ACT, repeats)
+        best = min(best, time.perf_counter() - t0)
+    return best / (repeats * len(states))
+
+
+def steady_row(name, span, with_scipy=True):
+    values = load_scene(name)
+    sim = Simulator(values)
+    sim.advance(WARM)
+    start = Simulator(values)
+    start.advance(WARM)   # the same state, for scipy and the reference
+    c0 = sim.counters.copy()
+    sw0 = sim.switch_count
+    wall0 = time.perf_counter()
+    sim.run(span, SAMPLE_DT, keep_samples=False)
+    wall = time.perf_counter() - wall0
+    d = sim.counters - c0
+    switches = sim.switch_count - sw0
+    n_rhs = int(d[H.C_RHS])
+    per_rhs = rhs_cost(values, n_rhs)
+    ref = Simulator(dict(values, **TIGHT))
+    ref.advance(WARM)
+    ref.advance(span)
+    phi4_ref = ref.sample()[COL['phi4']]
+    row = {'scene': name, 'span': span, 'wall': wall, 'rhs': n_rhs, 'per_rhs': per_rhs,
+           'floor': n_rhs * per_rhs, 'steps': int(d[H.C_STEPS]),
+           'rejected': int(d[H.C_REJECTED]), 'switches': switches,
+           'phi4_err': abs(sim.sample()[COL['phi4']] - phi4_ref) / abs(phi4_ref)}
+    if with_scipy:
+        r = solve_reference(values, WARM + span, method='DOP853', rtol=1e-4, atol=1e-6,
+                            start=start)
+        row['scipy_wall'] = r.wall_time
+        row['scipy_nfev'] = r.nfev
+        row['scipy_err'] = abs(r.y[L.PHI4] + start.turns_phi4 - phi4_ref) / abs(phi4_ref)
+        row['scipy_switches'] = len(r.switch_times)
+    return row
+
+
+def steady_state(cfg, log):
+    rows = []
+    for name in cfg.steady_scenes:
+        t0 = time.perf_counter()
+        rows.append(steady_row(name, cfg.steady_span))
+        r = rows[-1]
+        log(f"steady state [{name}]: {r['span'] / r['wall']:.0f}x real time, "
+            f"{r['scipy_wall'] / r['wall']:.0f}x scipy DOP853, floor ratio "
+            f"{r['wall'] / r['floor']:.2f} ({time.perf_counter() - t0:.0f} s)")
+    return rows
+
+
+def section_steady(rows, load):
+    span = rows[0]['span']
+    L_ = [f'## Speed at steady state ({span:g} s from t = {WARM:g} s)', '']
+    L_ += [f"The defaults (dopri5, rtol 2e-6) as `cvt-sim run` runs them ({SAMPLE_DT:g} s samples, "
+           f"streamed), after {WARM:g} s of start-up, against scipy DOP853 at rtol 1e-4 (atol "
+           "1e-6, events on the same guards) from the same state, in the same run; φ4 errors "
+           "against the project at rtol 1e-10 from that state. **RHS floor** = the solver's own "
+           "count of right-hand-side evaluations in the window × the cost of one (a compiled "
+           "loop over 2 s of this scene's states at 1 ms, both clutch modes, minimum of 3); "
+           "floor ratio = wall / floor. Targets (issue 12): ≥ "
+           f"{TARGETS['paper']:.0f}× scipy on paper and conveyor, ≥ {TARGETS['stiff_shaft']:.0f}× "
+           f"on the stiff shaft, floor ratio ≤ {FLOOR_TARGET}, ≤ {REJECT_TARGET} rejected steps "
+           f"per switch. Load average during the run: {load}.", '']
+    body = []
+    for r in rows:
+        speed = r['scipy_wall'] / r['wall']
+        body.append([r['scene'], f"{r['wall'] * 1e3:.1f}", f"{r['span'] / r['wall']:.0f}",
+                     fmt(r['phi4_err']), f"{r['scipy_wall']:.2f}", fmt(r['scipy_err']),
+                     f"{speed:.0f} ({'meets' if speed >= TARGETS[r['scene']] else 'misses'} "
+                     f"{TARGETS[r['scene']]:.0f})",
+                     f"{r['rhs']} ({r['rhs'] / r['span']:.0f}/s)", f"{r['per_rhs'] * 1e9:.0f}",
+                     f"{r['wall'] / r['floor']:.2f}",
+                     f"{r['rejected'] / max(r['switches'], 1):.2f}", r['switches'],
+                     r.get('scipy_switches', '–')])
+    L_ += table(['scene', 'wall [ms]', 'RTF', 'φ4 rel. error', 'scipy DOP853 1e-4 [s]',
+                 'scipy φ4 error', 'speed-up × scipy (target)', 'RHS evaluations',
+                 'ns per RHS', 'floor ratio', 'rejected per switch', 'switches',
+                 'scipy switches'], body)
+    return L_ + ['']
