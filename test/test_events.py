@@ -11,6 +11,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from cvt_ros.bench.scaling import VARIANTS
 from cvt_ros.physics import layout as L
 from cvt_ros.physics.linkage import grashof_bound
 from cvt_ros.scene import available_scenes, load_scene
@@ -19,13 +20,6 @@ from cvt_ros.solver.simulator import Simulator
 
 RTOLS = (1e-4, 1e-6, 1e-8, 1e-10)
 SPAN = 0.5
-VARIANTS = {
-    'reduced, exact output': {},
-    'reduced, integrated output': {'solver.output_subsystem': 'integrate'},
-    'paper, exact output': {'model.formulation': 'paper'},
-    'paper, integrated output': {'model.formulation': 'paper',
-                                 'solver.output_subsystem': 'integrate'},
-}
 
 
 def switch_count(values, rtol, span=SPAN):

@@ -92,6 +92,8 @@ from .witness import (
     guard_polynomial,
     guard_value,
     hermite_minimum,
+    illinois_point,
+    illinois_update,
     lowest_point,
     poly_root,
     poly_value,
@@ -291,31 +293,13 @@ def _locate(split, exact, method, t, h, y0, y1, K, tau, hs, z0, clock, mode, P, 
     for it in range(200):
         if hi - lo <= tol_theta:
             break
-        if it % 4 == 3:
-            m = 0.5 * (lo + hi)  # guarantees the bracket shrinks even on a one-sided approach
-        else:
-            m = hi - ghi * (hi - lo) / (ghi - glo)
-            if not (lo < m < hi):
-                m = 0.5 * (lo + hi)
+        m = illinois_point(it, lo, hi, glo, ghi)
         if split:
             gm = _true_split_slip(exact, m, t, h, y0, K, tau, hs, z0, clock, P, ACT, ytmp, ztmp)
         else:
             gm = _guard_at(method, m, t, h, y0, y1, K, mode, P, ACT, ytmp, dytmp, auxtmp,
                            counters)
-        if gm > 0.0:
-            lo = m
-            glo = gm
-            if side == 1:
-                ghi *= 0.5
-            side = 1
-        elif gm < 0.0:
-            hi = m
-            ghi = gm
-            if side == -1:
-                glo *= 0.5
-            side = -1
-        else:
-            return m
+        lo, hi, glo, ghi, side = illinois_update(m, gm, lo, hi, glo, ghi, side)
     return hi
 
 

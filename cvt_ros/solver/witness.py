@@ -157,6 +157,31 @@ def lowest_point(G, floor):
     return best_x, best
 
 
+@inline_kernel
+def illinois_point(it, lo, hi, glo, ghi):
+    """The next point of Illinois' regula falsi in [lo, hi] (every 4th a bisection, so the
+    bracket shrinks even on a one-sided approach)."""
+    if it % 4 == 3:
+        return 0.5 * (lo + hi)
+    m = hi - ghi * (hi - lo) / (ghi - glo)
+    return m if lo < m < hi else 0.5 * (lo + hi)
+
+
+@inline_kernel
+def illinois_update(m, gm, lo, hi, glo, ghi, side):
+    """The bracket (lo, hi, glo, ghi, side) after the guard's value gm at m; side 0 with
+    gm == 0 means m is the root. The stale end's value is halved (Illinois)."""
+    if gm > 0.0:
+        if side == 1:
+            ghi *= 0.5
+        return m, hi, gm, ghi, 1
+    if gm < 0.0:
+        if side == -1:
+            glo *= 0.5
+        return lo, m, glo, gm, -1
+    return m, m, gm, gm, 0
+
+
 @kernel
 def poly_root(G, lo, hi, glo, ghi, tol):
     """Illinois' regula falsi on the guard G, G(lo) > 0 > G(hi); θ just past the root."""
@@ -164,27 +189,8 @@ def poly_root(G, lo, hi, glo, ghi, tol):
     for it in range(200):
         if hi - lo <= tol:
             break
-        if it % 4 == 3:
-            m = 0.5 * (lo + hi)  # the bracket shrinks even on a one-sided approach
-        else:
-            m = hi - ghi * (hi - lo) / (ghi - glo)
-            if not (lo < m < hi):
-                m = 0.5 * (lo + hi)
-        gm = guard_value(G, m)
-        if gm > 0.0:
-            lo = m
-            glo = gm
-            if side == 1:
-                ghi *= 0.5
-            side = 1
-        elif gm < 0.0:
-            hi = m
-            ghi = gm
-            if side == -1:
-                glo *= 0.5
-            side = -1
-        else:
-            return m
+        m = illinois_point(it, lo, hi, glo, ghi)
+        lo, hi, glo, ghi, side = illinois_update(m, guard_value(G, m), lo, hi, glo, ghi, side)
     return hi
 
 
