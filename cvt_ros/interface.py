@@ -34,7 +34,8 @@ from .solver.output import COL
 
 __all__ = [
     'ACTUATOR_JOINT', 'CLOCK', 'CLUTCH_ENGAGED', 'CRANK_LENGTH_CMD', 'DEVICE_JOINTS', 'DIAGNOSTICS',
-    'JOINTS', 'JOINT_STATES', 'JointStateEncoder', 'LOAD_TORQUE_CMD', 'QOS', 'STATE', 'STATE_QOS',
+    'JOINTS', 'JOINT_COMMANDS', 'JOINT_STATES', 'JointStateEncoder', 'LOAD_TORQUE_CMD', 'QOS',
+    'STATE', 'STATE_QOS',
     'TOPICS', 'TopicSpec', 'JointStateValues', 'command_subscription_qos', 'state_qos',
     'POSITION_COLUMNS', 'VELOCITY_COLUMNS', 'EFFORT_COLUMNS',
     'bool_cdr', 'clock_cdr', 'clock_msg', 'clock_qos', 'clutch_msg', 'clutch_qos',
@@ -72,6 +73,10 @@ CLOCK = '/clock'
 DIAGNOSTICS = '/diagnostics'
 CRANK_LENGTH_CMD = 'crank_length_cmd'
 LOAD_TORQUE_CMD = 'load_torque_cmd'
+#: topic_based_ros2_control's command topic (its ``joint_commands_topic``, remapped here): a
+#: sensor_msgs/JointState whose entry ``<joint_prefix>crank_length`` carries the crank-length
+#: command as its position [m]; every other entry is ignored.
+JOINT_COMMANDS = 'joint_commands'
 #: The latest sample, latched (transient local, keep last 1): a controller that starts after the
 #: node (or after a reset) gets the present sample at once. Same content as joint_states; not in
 #: TOPICS (recordings carry joint_states, not this copy).
@@ -98,6 +103,8 @@ QOS: dict[str, dict[str, Any]] = {
     'diagnostics': _qos('keep_last', 10, 'reliable', 'volatile'),
     'crank_length_cmd': _qos('keep_last', 10, 'reliable', 'volatile'),
     'load_torque_cmd': _qos('keep_last', 10, 'reliable', 'volatile'),
+    # what topic_based_ros2_control's publisher offers (rclcpp::QoS(1)) and more
+    'joint_commands': _qos('keep_last', 10, 'reliable', 'volatile'),
 }
 
 
@@ -129,6 +136,9 @@ TOPICS: dict[str, TopicSpec] = {s.key: s for s in (
               'crank length command [m]'),
     TopicSpec('load_torque_cmd', LOAD_TORQUE_CMD, 'std_msgs/msg/Float64', 'in',
               'load torque command [N·m]'),
+    TopicSpec('joint_commands', JOINT_COMMANDS, 'sensor_msgs/msg/JointState', 'in',
+              'crank length command [m] as the position of joint crank_length '
+              '(topic_based_ros2_control)'),
 )}
 
 

@@ -239,6 +239,10 @@ NODE_PARAMETERS = (
     _spec('limits.load_torque', 1000.0, 'N*m',
                   'largest |load_torque_cmd| accepted; larger commands are refused',
                   low=0.0, high=1e5, low_open=True),
+    _spec('disturbance.file', '', '-',
+                  'CSV of load torque steps t,load_torque [s, N*m], each applied at the start of '
+                  'the first control period k with k*(1/publish_rate) >= t (reproducible '
+                  'lockstep disturbances; docs/lockstep.md); empty = none'),
     _spec('joint_prefix', '', '-',
                   'prefix of the joint names in joint_states (e.g. line1_)', max_length=256),
     _spec('record.path', '', '-',

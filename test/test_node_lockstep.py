@@ -23,6 +23,7 @@ from node_harness import (
     stamp_ns,
     wait_for,
 )
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -57,13 +58,16 @@ def device():
         diagnostics = probe.subscribe(DiagnosticArray, '/diagnostics')
         crank = probe.publisher(Float64, 'crank_length_cmd')
         load = probe.publisher(Float64, 'load_torque_cmd')
+        joint_commands = probe.publisher(JointState, 'joint_commands')
         with NodeProcess(domain, ['-p', 'time_mode:=lockstep']) as proc:
             assert wait_for(lambda: len(early) > 0, 180.0), proc.output()   # (a cold kernel cache)
             assert wait_for(lambda: crank.get_subscription_count() > 0
                             and load.get_subscription_count() > 0
+                            and joint_commands.get_subscription_count() > 0
                             and joints.subscription.get_publisher_count() > 0, 10.0)
             yield SimpleNamespace(proc=proc, probe=probe, joints=joints, crank=crank, load=load,
-                                  diagnostics=diagnostics, early=early, domain=domain)
+                                  joint_commands=joint_commands, diagnostics=diagnostics,
+                                  early=early, domain=domain)
             assert proc.alive(), proc.output()
     finally:
         probe.close()
@@ -171,20 +175,34 @@ SCRIPT = ([('crank', 0.04)] * 15 + [('crank', 0.06)] * 10 + [('load', 12.0)]
           + [('crank', math.nan)] + [('crank', 0.05)] * 10 + [('load', 1e9)]
           + [('crank', 0.05)] * 8)
 N_CRANK = sum(1 for topic, _ in SCRIPT if topic == 'crank')
+# the same script's crank commands sent on joint_commands (topic_based_ros2_control): the entry
+# of joint crank_length is the command, the others are ignored
+OTHER_JOINTS = ['crank', 'rocker', 'output_shaft']
 
 
-def run_script(device):
+def acked(publisher):
+    """Delivered to every matched reader: a message published after this one cannot overtake
+    it, whatever topic it is on (the node takes the load subscription's messages first)."""
+    assert publisher.wait_for_all_acked(Duration(seconds=10))
+
+
+def joint_command(value, name='crank_length'):
+    return JointState(name=OTHER_JOINTS[:2] + [name] + OTHER_JOINTS[2:],
+                      position=[1.0, -2.0, value, 3.0])
+
+
+def run_script(device, on_joint_commands=False):
     n0 = reset(device)
     advanced = 0
     for topic, value in SCRIPT:
         if topic == 'load':
             device.load.publish(Float64(data=value))
-            if abs(value) <= 1000.0:
-                # two topics have no common order: wait until the node holds the disturbance
-                # (a ~/pause false reply names the load in force) before the next command
-                holds_load(device, value)
+            acked(device.load)   # delivered before the next crank command is sent
             continue
-        device.crank.publish(Float64(data=value))
+        if on_joint_commands:
+            device.joint_commands.publish(joint_command(value))
+        else:
+            device.crank.publish(Float64(data=value))
         advanced += STEPS
         wait_stamp(device, advanced * MS)
     msgs = device.joints.messages(n0)
@@ -192,20 +210,32 @@ def run_script(device):
     return np.array([row(m) for m in msgs])
 
 
-def run_offline():
+def run_offline(script=SCRIPT, disturbance=()):
+    """The offline core driven as the device drives it: a crank command that changes the set
+    point is given (a repeated one changes nothing), refused ones (NaN, beyond
+    limits.load_torque) change nothing, and a refused crank command still advances its periods
+    with the last valid command; ``disturbance``: (t, load) rows applied at the first period
+    k with k·DT >= t."""
     sim = Simulator(load_scene('conveyor', {'solver.method': 'rk4'}))
     rows = [sim.sample()[COLUMNS]]
-    for topic, value in SCRIPT:
-        # refused commands (NaN, beyond limits.load_torque) change nothing; a refused crank
-        # command still advances its periods with the last valid command
+    target = sim.crank_length_target
+    pending = list(disturbance)
+    k = 0
+    for topic, value in script:
         if topic == 'load':
             if abs(value) <= 1000.0:
                 sim.set_load_torque(value)
             continue
-        if math.isfinite(value):
+        if math.isfinite(value) and value != target:
             sim.command_crank_length(value)
+            target = value
         for _ in range(STEPS):
+            due = [load for t, load in pending if t <= k * DT]
+            if due:
+                sim.set_load_torque(due[-1])
+                pending = pending[len(due):]
             sim.advance(DT)
+            k += 1
             rows.append(sim.sample()[COLUMNS])
     return np.array(rows)
 
@@ -215,9 +245,12 @@ def test_lockstep_controller_run_is_reproducible_to_the_bit(device):
     try:
         first = run_script(device)
         second = run_script(device)     # after ~/reset: the same run again
+        # topic_based_ros2_control's joint_commands: the same commands, the same run
+        third = run_script(device, on_joint_commands=True)
     finally:
         set_params(device, steps_per_command=0)
     assert np.array_equal(first, second)
+    assert np.array_equal(first, third)
     # and it is the offline core's run: same scene, same step, commands at the same steps
     offline = run_offline()
     assert np.array_equal(first, offline), np.abs(first - offline).max()
@@ -225,6 +258,69 @@ def test_lockstep_controller_run_is_reproducible_to_the_bit(device):
     assert first[-1, 8] > first[15 * STEPS, 8]
     # (rate-limited to 10 mm/s: still on its way up at the end, short of the 0.05 m target)
     assert 0.04 < first[15 * STEPS + 1, 4] < first[25 * STEPS, 4] < first[-1, 4] < 0.05
+
+
+def test_disturbance_file_lands_in_its_period(device, tmp_path):
+    """disturbance.file: load steps given up front land at the first period with k·DT >= t,
+    whatever the timing of the controller's commands — the run equals the offline core's with
+    the loads applied at those periods, to the bit."""
+    rows = [(0.0, 8.0), (0.1, 11.0), (0.2105, 14.0), (0.45, 9.5)]
+    path = tmp_path / 'disturbance.csv'
+    path.write_text('t,load_torque\n' + ''.join(f'{t!r},{m!r}\n' for t, m in rows))
+    script = [('crank', 0.04)] * 5 + [('crank', 0.06)] * 20
+    set_params(device, steps_per_command=STEPS, **{'disturbance.file': str(path)})
+    try:
+        n0 = reset(device)   # the schedule starts at t = 0
+        for k, (_, value) in enumerate(script, start=1):
+            device.crank.publish(Float64(data=value))
+            wait_stamp(device, k * STEPS * MS)
+        got = np.array([row(m) for m in device.joints.messages(n0)])
+    finally:
+        set_params(device, steps_per_command=0, **{'disturbance.file': ''})
+    offline = run_offline(script, rows)
+    assert np.array_equal(got, offline), np.abs(got - offline).max()
+    # the load torque (effort of the output shaft: M + viscous·ω4) follows the schedule
+    k_step = 211   # 0.2105 s: the first period that starts at or after it
+    assert got[k_step, 12] == pytest.approx(11.0 + 0.05 * got[k_step, 8])
+    assert got[k_step + 1, 12] == pytest.approx(14.0 + 0.05 * got[k_step + 1, 8])
+
+
+def test_bad_disturbance_files_and_joint_commands_are_refused_with_the_reason(device, tmp_path):
+    bad = tmp_path / 'bad.csv'
+    for text, reason in (('t,load_torque\n0,8\n0,9\n', 'does not increase'),
+                         ('0,nan\n', 'not a finite number'),
+                         ('0,2e3\n', 'beyond the limit |M| <= 1000.0 N*m'),
+                         ('0;8\n', 'expected 2 fields')):
+        bad.write_text(text)
+        result = device.probe.set_parameters(NODE, **{'disturbance.file': str(bad)})[0]
+        assert not result.successful
+        assert str(bad) in result.reason and reason in result.reason, result.reason
+    result = device.probe.set_parameters(NODE, **{'disturbance.file': str(tmp_path / 'no')})[0]
+    assert not result.successful and 'cannot read' in result.reason
+    # joint_commands without the crank_length joint, or with a bad value: refused, the
+    # period goes on with the last valid command (as on crank_length_cmd)
+    n0 = reset(device)
+    set_params(device, steps_per_command=1)
+    try:
+        for msg in (joint_command(math.nan), joint_command(0.05, name='crank_len'),
+                    joint_command(0.2), JointState(name=['crank_length'], position=[])):
+            device.joint_commands.publish(msg)
+            acked(device.joint_commands)
+        wait_stamp(device, 4 * MS)
+    finally:
+        set_params(device, steps_per_command=0)
+    msgs = device.joints.messages(n0)
+    assert [stamp_ns(m) for m in msgs] == [k * MS for k in range(5)]
+    assert all(m.position[4] == 0.04 and m.velocity[4] == 0.0 for m in msgs)
+    # each reason is logged (a repeated one at most once a second), naming value and limit
+    for text in ('refused joint_commands crank_length = nan m: not a finite number',
+                 "refused joint_commands = names [crank, rocker, crank_len, output_shaft]: no "
+                 "joint 'crank_length'",
+                 'refused joint_commands crank_length = 0.2 m: outside the Grashof range; '
+                 'limit [0, 0.1) m',
+                 "refused joint_commands = 0 positions: no position for joint 'crank_length'"):
+        assert wait_for(lambda text=text: text in device.proc.output(), 10.0), \
+            (text, device.proc.output()[-2000:])
 
 
 def test_every_command_is_applied_in_order_or_counted_as_lost(device):

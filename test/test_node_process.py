@@ -93,3 +93,16 @@ def test_unknown_parameter_is_refused_at_start_naming_the_closest():
         assert proc.proc.returncode == 2, output
     assert 'unknown parameter time_mod (did you mean time_mode?)' in output, output
     assert 'Traceback' not in output, output
+
+
+def test_bad_disturbance_file_is_refused_at_start(tmp_path):
+    path = tmp_path / 'load.csv'
+    path.write_text('t,load_torque\n0,8\n1.5,inf\n')
+    domain = domain_id()
+    with NodeProcess(domain, ['-p', f'disturbance.file:={path}']) as proc:
+        assert wait_for(lambda: not proc.alive(), 180.0)
+        output = proc.output()
+        assert proc.proc.returncode == 2, output
+    assert f"disturbance.file: {path}:3: load_torque 'inf' is not a finite number" in output, \
+        output
+    assert 'Traceback' not in output, output

@@ -27,9 +27,14 @@ from ..physics.linkage import GrashofError, check_crank_lengths_fit, grashof_bou
 from ..solver.fidelity import make_simulator
 from ..solver.output import COL
 from ..solver.simulator import SimulationError
+from .disturbance import DisturbanceError, load_disturbance
 
 PHYSICS_NAMES = frozenset(s.name for s in PHYSICS_PARAMETERS)
 NODE_NAMES = frozenset(s.name for s in NODE_PARAMETERS)
+DISTURBANCE = 'disturbance.file'
+#: Parameters the device takes at a period boundary (the node queues them for its loop thread):
+#: the physics and the disturbance schedule.
+PERIOD_NAMES = PHYSICS_NAMES | {DISTURBANCE}
 RING_SIZE = 4096   # step times kept for percentiles
 
 
@@ -90,13 +95,28 @@ def geometry(values):
             values['linkage.pivot_distance'])
 
 
+def disturbance_schedule(values):
+    """The schedule named by ``values['disturbance.file']`` (None when empty), its loads checked
+    against ``limits.load_torque``; ParameterError naming the file, line and value otherwise."""
+    path = values.get(DISTURBANCE, '')
+    if not path:
+        return None
+    try:
+        return load_disturbance(path, values.get('limits.load_torque', math.inf))
+    except DisturbanceError as exc:
+        raise ParameterError(DISTURBANCE, str(exc)) from None
+
+
 def check_parameter_change(values, changes, present, commanded):
     """The validated values after ``changes``, or ParameterError / GrashofError with the reason.
 
     ``present``, ``commanded``: the actuator's crank length now and the last accepted command
-    [m]; a new geometry must leave room for both (``check_crank_lengths_fit``).
+    [m]; a new geometry must leave room for both (``check_crank_lengths_fit``). A new
+    disturbance file (or load limit) is read and checked.
     """
     new = params_mod.validate(dict(values, **changes))
+    if DISTURBANCE in changes or 'limits.load_torque' in changes:
+        disturbance_schedule(new)
     if any(name.startswith('linkage.') for name in changes):
         target = new['linkage.crank_length'] if 'linkage.crank_length' in changes else commanded
         try:
@@ -111,8 +131,9 @@ def check_parameter_change(values, changes, present, commanded):
 class Device:
     """The transmission as a device. ``values``: validated scene values (``parameters.validate``
     or ``scene.load_scene``; the node's own parameters may be among them, the limit
-    ``limits.load_torque`` is taken from them). ``control_period`` [s]: simulation time per
-    ``advance()``. Raises ParameterError / GrashofError for values the physics cannot take."""
+    ``limits.load_torque`` is taken from them; ``disturbance.file`` names a load schedule,
+    ``device/disturbance.py``). ``control_period`` [s]: simulation time per ``advance()``.
+    Raises ParameterError / GrashofError for values the physics cannot take."""
 
     def __init__(self, values, control_period=1e-3):
         if not (control_period > 0.0 and math.isfinite(control_period)):
@@ -122,6 +143,7 @@ class Device:
         self.dt = float(control_period)
         self.step_ns = Ring()
         self.sim = None
+        self.disturbance = disturbance_schedule(self.values)
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -133,6 +155,10 @@ class Device:
         self.crank_target = v['linkage.crank_length']   # last accepted crank length [m]
         self.load_command = v['load.torque']            # last accepted load torque [N·m]
         self.fault = None
+        # the period grid t_k = grid_t0 + k·dt the disturbance schedule is applied on: k counted
+        # from the reset (re-anchored when the control period changes)
+        self._grid_t0, self._grid_k, self._grid_dt = 0.0, 0, self.dt
+        self._next_disturbance = 0   # index of the schedule's next row
         try:
             self.sim = make_simulator(physics_values(v))
         except (ParameterError, GrashofError, SimulationError) as exc:
@@ -167,13 +193,14 @@ class Device:
         return Period(t, t, [], self.sim.sample(), self.actuator()[1])
 
     # ------------------------------------------------------------------ commands
-    def check_crank_length(self, a):
-        """Raise CommandError unless ``a`` [m] is a crank length the linkage can take now."""
+    def check_crank_length(self, a, topic='crank_length_cmd'):
+        """Raise CommandError unless ``a`` [m] is a crank length the linkage can take now
+        (``topic``: where it came from, for the message)."""
         bound = self.bound
         if math.isfinite(a) and 0.0 <= a < bound:
             return
         why = 'not a finite number' if not math.isfinite(a) else 'outside the Grashof range'
-        raise CommandError('crank_length_cmd', f"{a!r} m", f"{why}; limit [0, {bound:g}) m")
+        raise CommandError(topic, f"{a!r} m", f"{why}; limit [0, {bound!r}) m")
 
     def check_load_torque(self, m):
         """Raise CommandError unless ``m`` [N·m] is finite and within limits.load_torque."""
@@ -182,12 +209,18 @@ class Device:
             return
         why = 'not a finite number' if not math.isfinite(m) else 'beyond the limit'
         raise CommandError('load_torque_cmd', f"{m!r} N*m",
-                           f"{why}; limit |M| <= {limit:g} N*m (parameter limits.load_torque)")
+                           f"{why}; limit |M| <= {limit!r} N*m (parameter limits.load_torque)")
 
     def command_crank_length(self, a):
         """Move the crank towards ``a`` [m] (rate- and acceleration-limited) from the next period
-        on. Raises CommandError (nothing changes) for a length the linkage cannot take."""
+        on. Raises CommandError (nothing changes) for a length the linkage cannot take.
+
+        The set point in force given again changes nothing (a position servo does not re-plan
+        its motion): a lockstep controller that repeats its command each period runs the same
+        actuator profile, bit for bit, as one that commands only changes."""
         self.check_crank_length(a)
+        if a == self.sim.crank_length_target:
+            return
         self.sim.command_crank_length(a)
         self.crank_target = a
 
@@ -213,6 +246,11 @@ class Device:
         go to the simulator, which books the stored energy's jump."""
         new = self.check_parameters(changes)
         physics = {k: new[k] for k in changes if k in PHYSICS_NAMES}
+        if DISTURBANCE in changes:
+            # the new schedule from now on: its rows already due apply at the next period (the
+            # last of them wins: the value the schedule has in force now)
+            self.disturbance = disturbance_schedule(new)
+            self._next_disturbance = 0
         if physics:
             self.sim.update_parameters(physics)
             if 'linkage.crank_length' in physics:
@@ -232,6 +270,11 @@ class Device:
         integration failed. A held fault advances nothing until reset()."""
         if self.fault:
             return None
+        if self.dt != self._grid_dt:   # a new control period: its grid starts here
+            self._grid_t0, self._grid_k, self._grid_dt = self.sim.t, 0, self.dt
+        if self.disturbance is not None:
+            self._apply_disturbance()
+        self._grid_k += 1
         sim = self.sim
         t0 = sim.t
         c0 = time.perf_counter_ns()
@@ -244,6 +287,19 @@ class Device:
         self.step_ns.add(time.perf_counter_ns() - c0)
         events = [s for s in switches if s.kind != 'graze']
         return Period(t0, sim.t, events, row, crank_actuator(sim.t, sim.ACT)[1])
+
+    def _apply_disturbance(self):
+        """Rows of the schedule due at this period's start t_k (t <= t_k): the last one wins."""
+        times, i = self.disturbance.times, self._next_disturbance
+        t_k = self._grid_t0 + self._grid_k * self.dt
+        if i >= len(times) or times[i] > t_k:
+            return
+        while i < len(times) and times[i] <= t_k:
+            i += 1
+        self._next_disturbance = i
+        value = self.disturbance.values[i - 1]
+        self.sim.set_load_torque(value)   # checked against limits.load_torque when loaded
+        self.load_command = value
 
     # ------------------------------------------------------------------ reporting
     def state_text(self):
@@ -270,5 +326,5 @@ class Device:
         }
 
 
-__all__ = ['CommandError', 'Device', 'Period', 'Ring', 'check_parameter_change',
-           'physics_values']
+__all__ = ['CommandError', 'Device', 'PERIOD_NAMES', 'Period', 'Ring', 'check_parameter_change',
+           'disturbance_schedule', 'physics_values']

@@ -2,8 +2,9 @@
 services, QoS). The physics is the Device (``core.py``), the time modes the RunLoop (``loop.py``),
 the health report ``diagnostics.py``; the full interface is in docs/node.md.
 
-* subscriptions (std_msgs/Float64, reliable, keep all): ``crank_length_cmd`` [m],
-  ``load_torque_cmd`` [N·m]
+* subscriptions (reliable, keep all): ``load_torque_cmd`` [N·m] and ``crank_length_cmd`` [m]
+  (std_msgs/Float64), ``joint_commands`` (sensor_msgs/JointState, topic_based_ros2_control: the
+  position of joint ``<joint_prefix>crank_length`` is a crank-length command [m])
 * publications: ``joint_states`` (sensor_msgs/JointState: J1..J4 and the actuator joint
   ``crank_length``), ``state`` (the same sample, latched: transient local, keep last 1),
   ``clutch_engaged`` (std_msgs/Bool, latched), ``/clock``, ``/diagnostics`` (~1 Hz)
@@ -36,7 +37,7 @@ from ..parameters import ParameterError
 from ..physics.linkage import GrashofError
 from ..scene import NODE_NAME, SceneError, read_scene
 from ..solver.output import COL
-from .core import NODE_NAMES, PHYSICS_NAMES, CommandError, Device
+from .core import NODE_NAMES, PERIOD_NAMES, CommandError, Device
 from .descriptors import describe, ros_value
 from .diagnostics import Reporter
 from .loop import REALTIME_POLICY, RunLoop
@@ -101,6 +102,7 @@ class CvtSimNode(Node):
 
         self._publish_clock = bool(values['publish_clock'])
         self._joint_names = [values['joint_prefix'] + j for j in JOINTS]
+        self._actuator_joint = self._joint_names[-1]   # its position in joint_commands
         self._warm_up(values)
         self.device = Device(values, 1.0 / values['publish_rate'])
         # the last accepted commands (executor thread; the loop applies them a step later)
@@ -125,12 +127,20 @@ class CvtSimNode(Node):
         self.diagnostics_publisher = self.create_publisher(
             DiagnosticArray, interface.DIAGNOSTICS, interface.diagnostics_qos())
         self._command_group = _CommandGroup()
-        self.crank_length_cmd_subscription = self.create_subscription(
-            Float64, interface.CRANK_LENGTH_CMD, self.crank_length_cmd_callback,
-            interface.command_subscription_qos(), callback_group=self._command_group)
+        # the load subscription first: rclpy's executor runs ready callbacks in creation order,
+        # so a disturbance that arrived with a crank command acts in that command's period
         self.load_torque_cmd_subscription = self.create_subscription(
             Float64, interface.LOAD_TORQUE_CMD, self.load_torque_cmd_callback,
             interface.command_subscription_qos(), callback_group=self._command_group)
+        self.crank_length_cmd_subscription = self.create_subscription(
+            Float64, interface.CRANK_LENGTH_CMD, self.crank_length_cmd_callback,
+            interface.command_subscription_qos(), callback_group=self._command_group)
+        self.joint_commands_subscription = self.create_subscription(
+            JointState, interface.JOINT_COMMANDS, self.joint_commands_callback,
+            interface.command_subscription_qos(), callback_group=self._command_group)
+        self._command_subscriptions = (self.load_torque_cmd_subscription,
+                                       self.crank_length_cmd_subscription,
+                                       self.joint_commands_subscription)
         self.reset_service = self.create_service(Trigger, '~/reset', self.reset_callback)
         self.pause_service = self.create_service(SetBool, '~/pause', self.pause_callback)
         self.step_service = self.create_service(Trigger, '~/step', self.step_callback)
@@ -144,6 +154,7 @@ class CvtSimNode(Node):
             'diagnostics': self.diagnostics_publisher.topic_name,
             'crank_length_cmd': self.crank_length_cmd_subscription.topic_name,
             'load_torque_cmd': self.load_torque_cmd_subscription.topic_name,
+            'joint_commands': self.joint_commands_subscription.topic_name,
         }
         if values['record.path']:
             self._open_recorder(values['record.path'])
@@ -235,8 +246,8 @@ class CvtSimNode(Node):
             return
         device, loop = self.device, self.loop
         new = params_mod.validate(dict(device.values, **changes))
-        physics = {k: new[k] for k in changes if k in PHYSICS_NAMES}
-        node = {k: new[k] for k in changes if k in NODE_NAMES}
+        physics = {k: new[k] for k in changes if k in PERIOD_NAMES}   # at a period boundary
+        node = {k: new[k] for k in changes if k in NODE_NAMES and k not in PERIOD_NAMES}
         # the node's settings take effect now; the physics at the loop's next step
         device.set_values(dict(new, **{k: device.values[k] for k in physics}))
         if physics:
@@ -257,6 +268,7 @@ class CvtSimNode(Node):
             self._publish_clock = bool(new['publish_clock'])
         if 'joint_prefix' in node:
             self._joint_names = [new['joint_prefix'] + j for j in JOINTS]
+            self._actuator_joint = self._joint_names[-1]
             self._encoder = interface.JointStateEncoder(self._joint_names)
         if 'record.path' in node:
             self._close_recorder()
@@ -269,27 +281,60 @@ class CvtSimNode(Node):
     # ------------------------------------------------------------------ commands
     def crank_length_cmd_callback(self, msg, info):
         """A crank length [m]: accepted in [0, Grashof bound), else refused (last one stays)."""
-        self._command('crank', 'crank_length_cmd', msg, info, self.device.check_crank_length,
-                      f"{self._crank_target:g} m")
+        self._command('crank', 'crank_length_cmd', msg, info, self._crank_length)
 
     def load_torque_cmd_callback(self, msg, info):
         """A load torque [N·m]: accepted when finite and |M| <= limits.load_torque."""
-        self._command('load', 'load_torque_cmd', msg, info, self.device.check_load_torque,
-                      f"{self._load_command:g} N*m")
+        self._command('load', 'load_torque_cmd', msg, info, self._load_torque)
 
-    def _command(self, kind, topic, msg, info, check, keeping):
-        value = msg.data
+    def joint_commands_callback(self, msg, info):
+        """topic_based_ros2_control's commands: the position of joint ``crank_length`` (with
+        the joint prefix) is a crank-length command, checked and stepped like
+        crank_length_cmd; the other joints' entries are ignored."""
+        self._command('crank', 'joint_commands', msg, info, self._joint_command)
+
+    def _crank_length(self, msg):
+        self.device.check_crank_length(msg.data)
+        return msg.data
+
+    def _load_torque(self, msg):
+        self.device.check_load_torque(msg.data)
+        return msg.data
+
+    def _joint_command(self, msg):
+        name = self._actuator_joint
+        try:
+            i = msg.name.index(name)
+        except ValueError:
+            shown = ', '.join(msg.name[:8]) + (' ...' if len(msg.name) > 8 else '')
+            raise CommandError('joint_commands', f"names [{shown}]",
+                               f"no joint {name!r} (its position is the crank-length command "
+                               f"[m])") from None
+        if i >= len(msg.position):
+            raise CommandError('joint_commands', f"{len(msg.position)} positions",
+                               f"no position for joint {name!r} (entry {i})")
+        value = float(msg.position[i])
+        self.device.check_crank_length(value, f'joint_commands {name}')
+        return value
+
+    def _command(self, kind, topic, msg, info, read):
+        """A command message from any command topic: counted, recorded, checked by ``read``
+        (its value, or CommandError with the reason), applied or refused, and in lockstep
+        stepped — a refused crank command still advances its periods with the last valid one."""
         loop = self.loop
         loop.stats.commands += 1
         self._count_lost(topic, info)
         self._hand_to_recorder(self._topic[topic], msg, self._published_ns)
         grant = loop.grant(kind)
         try:
-            check(value)
+            value = read(msg)
         except CommandError as exc:
             loop.stats.refused += 1
-            loop.warn(topic, f"{exc}; keeping the last valid command {keeping}", ' refused')
-            kind = None   # the controller's cycle goes on with the last valid command
+            keeping = (f"{self._crank_target:g} m" if kind == 'crank'
+                       else f"{self._load_command:g} N*m")
+            loop.warn((topic, exc.reason), f"{exc}; keeping the last valid command {keeping}",
+                      ' refused')
+            kind = value = None   # the controller's cycle goes on with the last valid command
         else:
             if kind == 'crank':
                 self._crank_target = value
@@ -311,8 +356,9 @@ class CvtSimNode(Node):
         self._last_seq[topic] = seq
         if last is None or seq <= last + 1:
             return
-        sub = (self.crank_length_cmd_subscription if topic == 'crank_length_cmd'
-               else self.load_torque_cmd_subscription)
+        sub = {'crank_length_cmd': self.crank_length_cmd_subscription,
+               'load_torque_cmd': self.load_torque_cmd_subscription,
+               'joint_commands': self.joint_commands_subscription}[topic]
         if sub.get_publisher_count() != 1:
             return
         lost = seq - last - 1
@@ -325,7 +371,7 @@ class CvtSimNode(Node):
     def take_commands(self):
         """Free-running modes (loop thread): hand the commands that arrived to their callbacks
         (which check them and queue the valid ones), right before the step they act on."""
-        for sub in (self.crank_length_cmd_subscription, self.load_torque_cmd_subscription):
+        for sub in self._command_subscriptions:
             for _ in range(TAKE_LIMIT):
                 try:
                     with sub.handle:
@@ -423,6 +469,7 @@ class CvtSimNode(Node):
             (self._topic['diagnostics'], DiagnosticArray, interface.diagnostics_qos()),
             (self._topic['crank_length_cmd'], Float64, interface.command_qos()),
             (self._topic['load_torque_cmd'], Float64, interface.command_qos()),
+            (self._topic['joint_commands'], JointState, interface.qos_profile('joint_commands')),
         ]
 
     def _open_recorder(self, path):
