@@ -3,26 +3,24 @@
 The node runs on a ROS domain held for this run alone (``cvt_ros.device.domains``), from a
 parameters file with every scene value of the scenario (so it runs exactly the offline
 model), ``time_mode: lockstep`` and ``steps_per_command: 1``: each crank_length_cmd advances one
-control period. The protocol (docs/node.md, "Lockstep"):
+control period. The protocol (docs/lockstep.md):
 
 * start: the node publishes the t = 0 sample on ``state`` (latched); the harness waits for it and
   for its command publishers to be matched — nothing is sent into the void;
 * each period: the harness publishes one crank_length_cmd (the controller's, or the one in force
   again: the device does not re-plan an unchanged command) and waits for the sample of the next
   period on ``state``; clutch switches arrive on ``clutch_engaged`` in between;
-* a load change is published on load_torque_cmd just before the crank command of its period.
-  The node applies load commands in arrival order at the next period; two topics have no
-  common order in DDS, so on a busy machine a load change can land one period late (waiting
-  for the reader's acknowledgement would close the gap but costs up to FastDDS's 3 s heartbeat
-  period per change). Set-point changes have no such race (they live in the controller).
+* the load schedule is handed to the node up front (parameter ``disturbance.file``: a CSV of
+  the periods where the load changes), and the node applies each change at the start of its
+  period on the k·period grid — a load command on its own topic would race the crank command
+  (two topics have no common order in DDS). Set-point changes live in the controller.
 
 With ``controller_cmd`` the controller is an external process (e.g. ``cvt_speed_controller``),
 started with ROS_DOMAIN_ID of the run and CVT_SETPOINT_FILE naming a CSV of the set point per
 control period (the reference controller's ``setpoint_file``); it steps the node itself, the
-harness watches the newest samples, sends the load schedule when it sees a change come due
-(so load changes are not reproducible to the period with an external controller) and takes
-the whole trace from the node's recording. ``realtime``: the node runs against the wall
-clock at that real-time factor (HIL rehearsal), the harness reacts to the newest sample.
+harness watches the newest samples and takes the whole trace from the node's recording.
+``realtime``: the node runs against the wall clock at that real-time factor (HIL rehearsal),
+the harness reacts to the newest sample.
 """
 import os
 import signal
@@ -37,11 +35,11 @@ import numpy as np
 import yaml
 
 from ..device import domains
+from ..interface import STATE
 from ..solver.output import COL, N_COLUMNS
 from ..solver.simulator import SimulationError
 from .plants import plant_values
 
-STATE = 'state'             # the device's latched latest sample (cvt_ros.interface.STATE)
 START_TIMEOUT_S = 300.0     # node start incl. compiling the kernels on a cold cache, loaded machine
 PERIOD_TIMEOUT_S = 30.0     # one lockstep period (a loaded machine stalls, it does not fail)
 _POS = [COL[c] for c in ('phi1', 'phi2', 'phi3', 'phi4')]
@@ -111,6 +109,11 @@ class DdsPlant:
         self.recording = os.path.join(self.tmp.name, 'run.mcap') if (realtime or controller_cmd) \
             else ''
         params['record.path'] = self.recording
+        # the load schedule goes to the node up front (parameter disturbance.file): it applies
+        # each change at the start of its period on the k·period grid, as offline does
+        self.disturbance = self._write_disturbance(scenario)
+        if self.disturbance:
+            params['disturbance.file'] = self.disturbance
         write_params_file(params_file, params)
         self.env = dict(os.environ, ROS_DOMAIN_ID=str(self.lease.domain),
                         ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST', PYTHONUNBUFFERED='1')
@@ -121,6 +124,19 @@ class DdsPlant:
             env=self.env, stdout=self.log, stderr=subprocess.STDOUT, pass_fds=[self.lease.fd])
         self.controller_proc = None
         self._setup_ros()
+
+    def _write_disturbance(self, scenario):
+        """CSV ``t,load_torque`` of the periods where the load schedule changes ('' if it
+        never does)."""
+        grid = scenario.time_grid()
+        load = scenario.load.sample(grid)
+        change = np.flatnonzero(np.diff(load) != 0) + 1
+        if not len(change):
+            return ''
+        path = os.path.join(self.tmp.name, 'disturbance.csv')
+        np.savetxt(path, np.column_stack([grid[change], load[change]]), delimiter=',',
+                   header='t,load_torque', comments='', fmt='%.17g')
+        return path
 
     # ------------------------------------------------------------------ ROS side
     def _setup_ros(self):
@@ -144,8 +160,6 @@ class DdsPlant:
                            durability=DurabilityPolicy.VOLATILE)   # each message is a switch
         self.node.create_subscription(Bool, interface.CLUTCH_ENGAGED,
                                       lambda m: self.switch_states.append(bool(m.data)), every)
-        self.load_publisher = self.node.create_publisher(Float64, interface.LOAD_TORQUE_CMD,
-                                                         interface.command_qos())
         self.crank_publisher = self.node.create_publisher(Float64, interface.CRANK_LENGTH_CMD,
                                                           interface.command_qos())
         self._live = False
@@ -209,9 +223,8 @@ class DdsPlant:
 
     # ------------------------------------------------------------------ plant protocol
     def start(self):
-        self._spin_until(lambda: self.crank_publisher.get_subscription_count() > 0
-                         and self.load_publisher.get_subscription_count() > 0,
-                         START_TIMEOUT_S, "cvt_node's command subscriptions")
+        self._spin_until(lambda: self.crank_publisher.get_subscription_count() > 0,
+                         START_TIMEOUT_S, "cvt_node's command subscription")
         row, _ = self._next_sample()
         self._engaged = bool(row[COL['engaged']])    # switches: messages that change it
         self._command = float(row[COL['crank_length']])
@@ -248,9 +261,7 @@ class DdsPlant:
             start_new_session=True)
 
     def set_load_torque(self, torque):
-        msg = self._Float64()
-        msg.data = float(torque)
-        self.load_publisher.publish(msg)   # before this period's crank command (see above)
+        """Nothing to send: the node has the schedule (``disturbance.file``)."""
 
     def command_crank_length(self, length):
         self._command = float(length)

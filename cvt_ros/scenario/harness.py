@@ -146,6 +146,9 @@ def _loop(scenario, controller, plant, controller_name, progress):
                 load_now = load[k]
                 plant.set_load_torque(float(load_now))
             r = row.tolist()
+            # the time as a ROS stamp carries it (whole ns): every back end's controller sees
+            # the same number (offline's t is a running sum of periods, dds's a stamp)
+            r[0] = round(r[0] * 1e9) * 1e-9
             m = sensors.observe(r[0], (r[1], r[2], r[3], r[4]), (r[5], r[6], r[7], r[8]),
                                 (r[14], r[11], r[15], r[13]), r[12], r[11] > 0.0, setpoint[k])
             try:
