@@ -1,5 +1,6 @@
-"""One run analysed: its crank cycles and per-run windows, energy balance and step responses
-(:func:`analyze_trace`); what the report, the JSON and the plots are made from."""
+"""One run analysed (:func:`analyze_trace`): its crank cycles, the whole-run figures (start-up
+included), the steady state detected from the cycle means and its figures, the energy balance
+and the step responses — what the report, the JSON and the plots are made from."""
 
 from __future__ import annotations
 
@@ -10,8 +11,10 @@ import numpy as np
 
 from .cycles import CycleTable, cycle_metrics
 from .energy import energy_balance
+from .steady import MIN_CYCLES, TOLERANCE, SteadyState, find_steady_state
 from .steps import StepResponse, step_responses
 from .trace import Trace
+from .whole_run import whole_run_metrics
 
 __all__ = ['RunAnalysis', 'analyze_trace']
 
@@ -22,16 +25,32 @@ class RunAnalysis:
 
     trace: Trace
     cycles: CycleTable
-    boundaries: np.ndarray
-    summary: dict[str, dict[str, float]]    # 'all' / 'last_quarter' -> metric -> value
+    boundaries: np.ndarray          # cycle boundary times [s] (len(cycles) + 1, or fewer)
+    whole_run: dict[str, float]     # whole_run_metrics: peaks and means over every sample
+    steady: SteadyState             # the detected steady window, or why there is none
+    steady_metrics: dict[str, float]  # CycleTable.window over the steady window ({} if none)
     energy: dict[str, Any]
     steps: list[StepResponse]
 
+    @property
+    def summary(self) -> dict[str, dict[str, float]]:
+        """{'whole_run': …, 'steady_state': …} (the latter {} without a steady state)."""
+        return {'whole_run': self.whole_run, 'steady_state': self.steady_metrics}
 
-def analyze_trace(trace: Trace) -> RunAnalysis:
-    """Split one run into crank cycles and compute every metric (:mod:`.cycles`,
-    :mod:`.energy`, :mod:`.steps`). Raises :class:`~.errors.AnalysisError` for unusable
-    samples."""
-    cycles, boundaries, summary = cycle_metrics(trace)
-    return RunAnalysis(trace, cycles, boundaries, summary, energy_balance(trace),
-                       step_responses(trace, cycles))
+
+def analyze_trace(trace: Trace, *, tolerance: float = TOLERANCE,
+                  min_cycles: int = MIN_CYCLES) -> RunAnalysis:
+    """Split one run into crank cycles and compute every figure (:mod:`.cycles`,
+    :mod:`.whole_run`, :mod:`.steady`, :mod:`.energy`, :mod:`.steps`). ``tolerance`` and
+    ``min_cycles`` define the steady state. Raises :class:`~.errors.AnalysisError` for
+    unusable samples."""
+    # extreme but finite samples (a damaged recording) may overflow: NaN/inf figures are
+    # reported as n/a, not as warnings
+    with np.errstate(all='ignore'):
+        cycles, boundaries = cycle_metrics(trace)
+        steady = find_steady_state(cycles, tolerance=tolerance, min_cycles=min_cycles)
+        steady_metrics = cycles.window(steady.first, steady.stop) if steady.found else {}
+        return RunAnalysis(trace, cycles, boundaries, whole_run_metrics(trace), steady,
+                           steady_metrics, energy_balance(trace),
+                           step_responses(trace, cycles, tolerance=tolerance,
+                                          min_cycles=min_cycles))

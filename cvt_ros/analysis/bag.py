@@ -8,8 +8,11 @@ other recorders the log time is mapped onto simulation time through the joint_st
 
 from __future__ import annotations
 
+import math
+import struct
 import warnings
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -21,83 +24,143 @@ from .trace import Command, RecordingInfo, Trace
 __all__ = ['load_mcap']
 
 
-def _jointstate_layout(data: bytes) -> tuple[list[int], list[int], int] | None:
-    """(joint order, byte offsets of the position/velocity/effort doubles, count) of one
-    JointState CDR message; None if it is not one of this node."""
+#: Joint name of the crank-length actuator in the node's joint_states (position = the actual
+#: crank length [m]); recordings made before it was published have none.
+ACTUATOR_JOINT = 'crank_length'
+#: More runs than this (simulation time going back again and again) is no recording of a node.
+MAX_RUNS = 1000
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """Where the values sit in one JointState CDR message of this recording."""
+
+    order: list[int]          # index of J1..J4 in the message's arrays
+    actuator: int | None      # index of the crank-length joint, if published
+    offsets: list[int]        # byte offsets of the position / velocity / effort doubles
+    count: int                # joints per array
+    size: int                 # message length
+
+    def structure_mask(self) -> np.ndarray:
+        """True for the bytes every message of this layout shares (all but stamp and values)."""
+        mask = np.ones(self.size, dtype=bool)
+        mask[4:12] = False
+        for off in self.offsets:
+            mask[off:off + 8 * self.count] = False
+        return mask
+
+
+def _actuator_index(names: list[str]) -> int | None:
+    hits = [i for i, n in enumerate(names) if n == ACTUATOR_JOINT]
+    if not hits:
+        hits = [i for i, n in enumerate(names) if n.endswith('_' + ACTUATOR_JOINT)]
+    return hits[0] if len(hits) == 1 else None
+
+
+def _jointstate_layout(data: bytes) -> _Layout | None:
+    """The layout of one JointState CDR message; None if it is not one of this node."""
     try:
-        values, names = I.decode_joint_state_cdr(data)
+        _, names = I.decode_joint_state_cdr(data)
     except ValueError:
         return None
-    cur = I._Cursor(data)
-    cur.pos = 12
-    cur.string()
-    for _ in range(cur.u32()):
+    order = I.joint_order(names)
+    if order is None:
+        return None
+    try:
+        cur = I._Cursor(data)
+        cur.pos = 12
         cur.string()
-    offsets = []
-    count = len(names)
-    for _ in range(3):
-        n = cur.u32()
-        if n != count:
-            return None
-        cur.align(8)
-        offsets.append(cur.pos)
-        cur.pos += 8 * n
-    return I.joint_order(names), offsets, count
+        for _ in range(cur.u32()):
+            cur.string()
+        offsets = []
+        count = len(names)
+        for _ in range(3):
+            if cur.u32() != count:
+                return None
+            cur.align(8)
+            offsets.append(cur.pos)
+            cur.pos += 8 * count
+    except (ValueError, UnicodeDecodeError, struct.error):
+        return None
+    if cur.pos != len(data):
+        return None
+    return _Layout(order, _actuator_index(names), offsets, count, len(data))
 
 
 def _decode_joint_states(datas: list[bytes]) -> tuple[np.ndarray, np.ndarray, np.ndarray,
-                                                       np.ndarray, list[str]]:
-    """Decode many JointState messages: (stamp_ns (m,), pos, vel, eff (m, 4)), problems.
+                                                       np.ndarray, np.ndarray, np.ndarray,
+                                                       list[str]]:
+    """Decode many JointState messages: decoded (m,) bool, stamp_ns (m,), position, velocity,
+    effort (m, 4), actual crank length (m,) (NaN: not published), problems.
 
-    Messages with the layout of the first are decoded in one numpy gather; others one by one.
+    Messages with the layout (and the same names, frame and counts, byte for byte) of the first
+    decodable one are decoded in one numpy gather; the others one by one.
     """
     m = len(datas)
     stamps = np.zeros(m, dtype=np.int64)
     out = [np.full((m, 4), np.nan) for _ in range(3)]
+    crank = np.full(m, np.nan)
     problems: list[str] = []
-    if not m:
-        return stamps, out[0], out[1], out[2], problems
-    layout = None
-    for data in datas:
-        layout = _jointstate_layout(data)
-        if layout is not None:
-            break
+    first, layout = next(((k, lay) for k, lay in enumerate(map(_jointstate_layout, datas))
+                          if lay is not None), (None, None))
     if layout is None:
         raise AnalysisError('joint_states messages do not carry the joints '
                             f'{", ".join(I.JOINTS)}')
-    order, offsets, count = layout
-    size = offsets[2] + 8 * count
     lengths = np.fromiter((len(d) for d in datas), dtype=np.int64, count=m)
-    fast = np.flatnonzero(lengths == size)
-    if len(fast):
-        buf = np.frombuffer(b''.join(datas[i] for i in fast), dtype=np.uint8).reshape(-1, size)
+    same_size = np.flatnonzero(lengths == layout.size)
+    fast = np.zeros(m, dtype=bool)
+    if len(same_size):
+        buf = np.frombuffer(b''.join(datas[i] for i in same_size),
+                            dtype=np.uint8).reshape(-1, layout.size)
+        mask = layout.structure_mask()
+        template = np.frombuffer(datas[first], dtype=np.uint8)[mask]
+        ok = np.all(buf[:, mask] == template, axis=1)
+        rows, buf = same_size[ok], buf[ok]
+        fast[rows] = True
         sec = buf[:, 4:8].copy().view('<i4')[:, 0].astype(np.int64)
         nsec = buf[:, 8:12].copy().view('<u4')[:, 0].astype(np.int64)
-        stamps[fast] = sec * 1_000_000_000 + nsec
-        for k, off in enumerate(offsets):
-            block = buf[:, off:off + 8 * count].copy().view('<f8')
-            out[k][fast] = block[:, order]
-    slow = np.flatnonzero(lengths != size)
+        stamps[rows] = sec * 1_000_000_000 + nsec
+        for k, off in enumerate(layout.offsets):
+            block = buf[:, off:off + 8 * layout.count].copy().view('<f8')
+            out[k][rows] = block[:, layout.order]
+            if k == 0 and layout.actuator is not None:
+                crank[rows] = block[:, layout.actuator]
     bad = 0
-    for i in slow:
+    for i in np.flatnonzero(~fast):  # fast: decoded so far
         try:
-            values, _ = I.decode_joint_state_cdr(datas[i])
+            values, names = I.decode_joint_state_cdr(datas[i])
         except ValueError:
             bad += 1
-            stamps[i] = -1
             continue
         stamps[i] = values.stamp_ns
+        fast[i] = True
         out[0][i], out[1][i], out[2][i] = values.position, values.velocity, values.effort
     if bad:
         problems.append(f'{bad} joint_states message(s) could not be decoded and were skipped')
-    return stamps, out[0], out[1], out[2], problems
+    return fast, stamps, out[0], out[1], out[2], crank, problems
+
+
+def _finite_samples(stamps: np.ndarray, pos: np.ndarray, vel: np.ndarray, eff: np.ndarray
+                    ) -> np.ndarray:
+    """Samples a node can have published: a stamp ≥ 0 and finite values (an effort column the
+    recording never fills, e.g. no motor torque, stays NaN and does not count)."""
+    carried = np.any(np.isfinite(eff), axis=0)
+    with np.errstate(invalid='ignore'):
+        return ((stamps >= 0) & np.all(np.isfinite(pos), axis=1)
+                & np.all(np.isfinite(vel), axis=1)
+                & ~np.any(~np.isfinite(eff) & carried, axis=1))
 
 
 def _pick_topics(topics: Mapping[str, tuple[str, int]], namespace: str | None,
-                 recorded: Mapping[str, str] | None) -> dict[str, str]:
-    """Interface key -> topic name in this recording."""
-    if recorded and namespace is None and recorded.get('joint_states') in topics:
-        return {k: v for k, v in recorded.items() if v in topics}
+                 recorded: Any) -> dict[str, str]:
+    """Interface key -> topic name in this recording (``recorded``: the recorder's own map,
+    used when it is a plain str → str map naming recorded topics)."""
+    if isinstance(recorded, dict) and namespace is None:
+        mapped = {k: v for k, v in recorded.items() if isinstance(k, str) and isinstance(v, str)
+                  and k in I.TOPICS and v in topics}
+        if mapped.get('joint_states') and \
+                topics[mapped['joint_states']][0] == 'sensor_msgs/msg/JointState':
+            return mapped
     js = [name for name, (type_name, _) in topics.items()
           if type_name == 'sensor_msgs/msg/JointState']
     if namespace is not None:
@@ -111,8 +174,8 @@ def _pick_topics(topics: Mapping[str, tuple[str, int]], namespace: str | None,
     if len(js) > 1:
         named = [name for name in js if name.endswith('/' + I.JOINT_STATES)]
         if len(named) != 1:
-            raise AnalysisError(f'several JointState topics ({", ".join(sorted(js))}); choose '
-                                'one with --namespace')
+            raise AnalysisError(f'several JointState topics ({", ".join(sorted(js)[:5])}); '
+                                'choose one with --namespace')
         js = named
     joint_states = js[0]
     ns = joint_states[:-len(I.JOINT_STATES)] if joint_states.endswith(I.JOINT_STATES) else '/'
@@ -126,12 +189,39 @@ def _pick_topics(topics: Mapping[str, tuple[str, int]], namespace: str | None,
     return picked
 
 
-def _yaml(text: str) -> Any:
-    import yaml
+def _yaml(text: Any) -> Any:
+    """A metadata value read as YAML (no aliases, bounded nesting); None if it is not YAML."""
+    from ..yaml_file import parse_value
 
+    if not isinstance(text, str):
+        return None
+    value = parse_value(text)
+    return None if value is text and text.strip() else value
+
+
+def _recorded_parameters(meta: Mapping[str, str], notes: list[str]) -> dict[str, Any] | None:
+    """The scene parameters stored by the recorder, validated like a scene (names this version
+    does not know are left out with a note); None, with a note, if they are unusable."""
+    from ..parameters import SPECS, validate
+    from ..physics.linkage import GrashofError
+
+    if 'parameters' not in meta:
+        return None
+    raw = _yaml(meta['parameters'])
+    if not isinstance(raw, dict) or not raw:
+        notes.append('the recorded scene parameters are unreadable: energy figures need '
+                     '--scene')
+        return None
+    unknown = sorted(str(k) for k in raw if k not in SPECS)
+    known = {k: v for k, v in raw.items() if k in SPECS}
+    if unknown:
+        notes.append(f'recorded parameters not known to this version left out: '
+                     f'{", ".join(unknown[:5])}' + (' …' if len(unknown) > 5 else ''))
     try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError:
+        return validate(known)
+    except (ValueError, TypeError, GrashofError) as exc:
+        notes.append(f'the recorded scene parameters are invalid ({exc}): energy figures need '
+                     '--scene')
         return None
 
 
@@ -151,15 +241,14 @@ def load_mcap(path: str, *, namespace: str | None = None
     info.problems.extend(bag.problems)
     info.topics = {name: (t.type_name, t.message_count) for name, t in bag.topics.items()}
     meta = bag.metadata.get(METADATA_NAME, {})
-    parameters = _yaml(meta['parameters']) if 'parameters' in meta else None
-    recorded_topics = _yaml(meta['topics']) if 'topics' in meta else None
     ours = bool(meta)
-    info.source = meta.get('source', '')
-    info.scene = meta.get('scene', '')
+    notes: list[str] = []
+    parameters = _recorded_parameters(meta, notes)
+    info.source = str(meta.get('source', ''))[:200]
+    info.scene = str(meta.get('scene', ''))[:200]
     if not info.topics and info.problems:
         raise AnalysisError(f'{path}: nothing readable ({info.problems[0]})')
-    picked = _pick_topics(info.topics, namespace, recorded_topics
-                          if isinstance(recorded_topics, dict) else None)
+    picked = _pick_topics(info.topics, namespace, _yaml(meta.get('topics')))
     keys = {name: key for key, name in picked.items()}
     js_data: list[bytes] = []
     js_log: list[int] = []
@@ -179,74 +268,108 @@ def load_mcap(path: str, *, namespace: str | None = None
     if not js_data:
         why = '; '.join(info.problems) if info.problems else 'no joint_states messages'
         raise AnalysisError(f'{path}: nothing to analyse ({why})')
-    stamps, pos, vel, eff, problems = _decode_joint_states(js_data)
+    decoded, stamps, pos, vel, eff, crank, problems = _decode_joint_states(js_data)
     info.problems.extend(problems)
-    good = stamps >= 0
-    stamps, pos, vel, eff = stamps[good], pos[good], vel[good], eff[good]
-    log = np.asarray(js_log, dtype=np.int64)[good]
+    good = decoded & _finite_samples(stamps, pos, vel, eff)
+    skipped = int(np.count_nonzero(decoded & ~good))
+    if skipped:
+        info.problems.append(f'{skipped} joint_states sample(s) with non-finite values or a '
+                             'negative stamp skipped')
+    samples = _Samples(stamps[good], np.asarray(js_log, dtype=np.int64)[good], pos[good],
+                       vel[good], eff[good], crank[good])
     changes = []
     if ours:
         for name, record in bag.metadata.items():
             if name == PARAMETER_CHANGE_NAME:  # summary keeps one per name: the last
-                changes.append((int(record.get('time_ns', 0)), _yaml(record.get('parameters',
-                                                                                 '')) or {}))
-    return _split_runs(path, stamps, log, pos, vel, eff, events, parameters, ours,
-                       info, changes), info
+                change = _yaml(record.get('parameters', ''))
+                try:
+                    changes.append((int(record.get('time_ns', 0)),
+                                    change if isinstance(change, dict) else {}))
+                except ValueError:
+                    pass
+    traces = _split_runs(path, samples, events, parameters, ours, info, changes)
+    for trace in traces:
+        trace.notes[:0] = notes
+    return traces, info
 
 
 def _event_value(key: str, data: bytes) -> float | None:
-    try:
-        if key == 'clutch_engaged':
-            return float(data[4] != 0)
-        return float(np.frombuffer(data, dtype='<f8', count=1, offset=4)[0])
-    except (IndexError, ValueError):
+    """The value of a clutch_engaged (Bool) or command (Float64) message; None if the bytes
+    are not one (or a command is not finite: the node refuses those)."""
+    if len(data) < 5 or data[1] not in (0, 1):
         return None
+    if key == 'clutch_engaged':
+        return float(data[4] != 0) if data[4] in (0, 1) else None
+    if len(data) < 12:
+        return None
+    value = struct.unpack_from('<d' if data[1] == 1 else '>d', data, 4)[0]
+    return value if math.isfinite(value) else None
 
 
-def _split_runs(path: str, stamps: np.ndarray, log: np.ndarray, pos: np.ndarray,
-                vel: np.ndarray, eff: np.ndarray, events: list, parameters: Any, ours: bool,
-                info: RecordingInfo, changes: list) -> list[Trace]:
+@dataclass
+class _Samples:
+    """Decoded joint_states samples in file order (arrays of one length)."""
+
+    stamps: np.ndarray        # int64 [ns]
+    log: np.ndarray           # int64 log times [ns]
+    pos: np.ndarray
+    vel: np.ndarray
+    eff: np.ndarray
+    crank: np.ndarray
+
+    def take(self, keep: np.ndarray) -> _Samples:
+        return _Samples(self.stamps[keep], self.log[keep], self.pos[keep], self.vel[keep],
+                        self.eff[keep], self.crank[keep])
+
+
+def _split_runs(path: str, samples: _Samples, events: list, parameters: dict | None,
+                ours: bool, info: RecordingInfo, changes: list) -> list[Trace]:
     """Cut the samples into runs where the stamp goes back; attach events by log time."""
-    cuts = np.flatnonzero(np.diff(stamps) <= 0) + 1
+    stamps = samples.stamps
     # a repeated stamp is a duplicate sample (e.g. paused and stepped): drop it, do not cut
-    dup = cuts[stamps[cuts] == stamps[cuts - 1]]
+    dup = np.flatnonzero(np.diff(stamps) == 0) + 1
     if len(dup):
         keep = np.ones(len(stamps), bool)
         keep[dup] = False
-        stamps, log, pos, vel, eff = stamps[keep], log[keep], pos[keep], vel[keep], eff[keep]
-        cuts = np.flatnonzero(np.diff(stamps) < 0) + 1
+        samples = samples.take(keep)
+        stamps = samples.stamps
+    cuts = np.flatnonzero(np.diff(stamps) < 0) + 1
     bounds = [0, *cuts.tolist(), len(stamps)]
-    params = parameters if isinstance(parameters, dict) else None
+    if len(bounds) - 1 > MAX_RUNS:
+        info.problems.append(f'simulation time goes back {len(cuts)} times: not the recording '
+                             f'of a node; only the first {MAX_RUNS} runs are analysed')
+        bounds = bounds[:MAX_RUNS + 1]
+    # events in log-time order, so each run's events are one slice (searchsorted)
+    order = np.argsort(np.array([e[1] for e in events], dtype=np.int64), kind='stable')
+    events = [events[i] for i in order]
     ev_log = np.array([e[1] for e in events], dtype=np.int64)
     traces = []
     for r in range(len(bounds) - 1):
         lo, hi = bounds[r], bounds[r + 1]
         if hi - lo < 2:
             continue
-        first_log = log[lo]
-        next_log = log[hi] if hi < len(log) else None
+        first_log = samples.log[lo]
+        next_log = samples.log[hi] if hi < len(samples.log) else None
         t = stamps[lo:hi] * 1e-9
-        if next_log is None:
-            in_run = ev_log >= first_log if r else np.ones(len(events), bool)
-        else:
-            in_run = ((ev_log >= first_log) if r else True) & (ev_log < next_log)
-        before = ev_log < first_log if r else np.zeros(len(events), bool)
-        switch_t, switch_on, commands = [], [], []
+        start = int(np.searchsorted(ev_log, first_log, 'left')) if r else 0
+        stop = int(np.searchsorted(ev_log, next_log, 'left')) if next_log is not None \
+            else len(events)
         initial = None
-        for j in np.flatnonzero(before):
-            key, _, _, data = events[j]
+        for key, _, _, data in reversed(events[:start] if r else []):
             if key == 'clutch_engaged':
                 value = _event_value(key, data)
                 initial = None if value is None else bool(value)
-        for j in np.flatnonzero(in_run):
-            key, lt, pt, data = events[j]
+                break
+        switch_t, switch_on, commands = [], [], []
+        run_log = samples.log[lo:hi]
+        for key, lt, pt, data in events[start:max(start, stop)]:
             value = _event_value(key, data)
             if value is None:
                 continue
             if ours:
                 ts = pt * 1e-9  # our recorder keeps the simulation time in publish_time
             else:   # ros2 bag record: map the log time onto simulation time via joint_states
-                ts = float(np.interp(lt, log[lo:hi], t))
+                ts = float(np.interp(lt, run_log, t))
             if key == 'clutch_engaged':
                 switch_t.append(ts)
                 switch_on.append(bool(value))
@@ -267,14 +390,16 @@ def _split_runs(path: str, stamps: np.ndarray, log: np.ndarray, pos: np.ndarray,
             notes.append('initial clutch state inferred from the first switch')
         elif initial is None:
             notes.append('no clutch_engaged messages: clutch metrics unavailable')
-        pos_r = pos[lo:hi]
-        trace = Trace(path, 'mcap', t, pos_r, vel[lo:hi], eff[lo:hi],
-                      pos_r[:, 2] - pos_r[:, 3], np.full(hi - lo, np.nan), switch_t_arr,
+        pos_r = samples.pos[lo:hi]
+        crank = samples.crank[lo:hi]
+        trace = Trace(path, 'mcap', t, pos_r, samples.vel[lo:hi], samples.eff[lo:hi],
+                      pos_r[:, 2] - pos_r[:, 3], crank.copy(), switch_t_arr,
                       switch_on_arr, initial, ours, sorted(commands, key=lambda c: c.t),
-                      params, 'recording' if params else '',
+                      parameters, 'recording' if parameters else '',
                       [(ns * 1e-9, ch) for ns, ch in changes if first_log <= ns
                        and (next_log is None or ns < next_log)],
-                      info.scene, len(traces), notes)
+                      info.scene, len(traces), notes,
+                      'recorded' if np.any(np.isfinite(crank)) else '')
         traces.append(trace)
     if not traces:
         raise AnalysisError(f'{path}: fewer than 2 samples in every run')

@@ -1,12 +1,12 @@
 """Crank cycles of a run and the metrics per cycle and per window of whole cycles.
 
-Metrics (:func:`cycle_metrics`), per crank cycle and per run. A crank cycle is one turn of the
-crank between successive crossings of φ1 = 2πk (k integer: the crank along the frame line
-O1→O2), located on the cubic Hermite interpolant of (φ1, ω1); only complete cycles count.
-Over a window [ta, tb] (one cycle, all cycles of a run, or the last quarter of them):
+A crank cycle is one turn of the crank between successive crossings of φ1 = 2πk (k integer: the
+crank along the frame line O1→O2), located on the cubic Hermite interpolant of (φ1, ω1); only
+complete cycles count. :func:`cycle_metrics` gives the per-cycle table; :meth:`CycleTable.window`
+aggregates any run of whole cycles (the steady state, :mod:`.steady`). Over a window [ta, tb]:
 
 * ratio i = Δφ4 / Δφ1 (= mean ω4 / mean ω1);
-* output speed ripple = (max ω4 − min ω4) / mean ω4 (n/a while |i| < 1e-3: neutral crank);
+* output speed ripple = (max ω4 − min ω4) / |mean ω4| (n/a while |i| < 1e-3: neutral crank);
 * torsion twist θ = φ3 − φ4: peak (max θ) and time mean;
 * peak clutch torque Tc,max and the **dynamic load factor** K = Tc,max / mean Tc (mean over the
   whole window, engaged or not: the torque the clutch transmits on average);
@@ -15,12 +15,8 @@ Over a window [ta, tb] (one cycle, all cycles of a run, or the last quarter of t
 * motor power P1 = ∫M1·ω1 dt / T, output power P4 = ∫M4·ω4 dt / T (the power taken by the load),
   efficiency η = ∫M4·ω4 / ∫M1·ω1 (n/a while |i| < 1e-3 or the motor does no work). The model
   is lossless except shaft damping (and the rare plastic engagement at start-up), so η < 1 in
-  steady state only by damping and by the change of stored energy over the window;
-* energy residual (per run, over the whole sampled span): ΔE − (W1 − W4 − Wd) with stored energy
-  E = ½ΣJk·ωk² + ½c·θ² (inertias, stiffness, damping from the scene parameters), W1 = ∫M1ω1,
-  W4 = ∫M4ω4, Wd = ∫kd·(ω3 − ω4)². Integrals are trapezoidal over the samples, so the residual
-  measures the sampling (O(Δt²), at the clutch switches O(Δt)) more than the solver; the
-  crank-length actuator's work is not recorded (flagged when the crank length moved).
+  steady state only by damping; over a window that is not in steady state the change of stored
+  energy enters, and η can leave [0, 1] (:func:`physical` tells; reports flag it).
 
 Integrals and means use the piecewise-linear interpolant of the samples, integrated exactly
 between the (interpolated) cycle boundaries.
@@ -36,8 +32,8 @@ import numpy as np
 from .errors import AnalysisError
 from .trace import Trace
 
-__all__ = ['CYCLE_FIELDS', 'DRIVEN_RATIO', 'TWO_PI', 'CycleTable', 'cycle_boundaries',
-           'cycle_metrics']
+__all__ = ['CYCLE_FIELDS', 'DRIVEN_RATIO', 'TWO_PI', 'CycleTable', 'Integrator',
+           'cycle_boundaries', 'cycle_metrics', 'physical']
 
 TWO_PI = 2.0 * math.pi
 #: Below this |ratio| the output is not driven (neutral crank): ripple and efficiency are n/a.
@@ -116,24 +112,32 @@ def _window_extrema(f: np.ndarray, lo: np.ndarray, hi: np.ndarray, fa: np.ndarra
     """max/min of samples lo..hi (inclusive; may be empty when hi < lo) and the ends fa, fb."""
     mx = np.maximum(fa, fb)
     mn = np.minimum(fa, fb)
-    nonempty = hi >= lo
-    if np.any(nonempty):
-        starts = lo[nonempty]
-        ends = hi[nonempty] + 1
-        # reduceat over [start, next start) — build explicit index ranges for safety
-        seg_max = np.array([np.max(f[a:b]) for a, b in zip(starts, ends, strict=True)])
-        seg_min = np.array([np.min(f[a:b]) for a, b in zip(starts, ends, strict=True)])
+    nonempty = np.flatnonzero(hi >= lo)
+    if len(nonempty):
+        # reduceat over [start, end) pairs: the even segments are the ranges (the odd ones, the
+        # gaps between them, are dropped); one sentinel sample lets an end be len(f)
+        edges = np.empty(2 * len(nonempty), dtype=np.intp)
+        edges[0::2], edges[1::2] = lo[nonempty], hi[nonempty] + 1
+        padded = np.append(f, f[-1])
+        seg_max = np.maximum.reduceat(padded, edges)[0::2]
+        seg_min = np.minimum.reduceat(padded, edges)[0::2]
         mx[nonempty] = np.maximum(mx[nonempty], seg_max)
         mn[nonempty] = np.minimum(mn[nonempty], seg_min)
     return mx, mn
 
 
+#: Per-cycle integrals kept for aggregating windows of whole cycles (:meth:`CycleTable.window`).
+_TOTALS = ('period', 'dphi4', 'twist', 'clutch_torque', 'engaged', 'motor_work', 'output_work')
+
+
 @dataclass
 class CycleTable:
-    """Per-cycle metrics: one array per name of ``CYCLE_FIELDS`` (length = complete cycles)."""
+    """Per-cycle metrics: one array per name of ``CYCLE_FIELDS`` (length = complete cycles),
+    the cycles' end times and their integrals (for :meth:`window`)."""
 
     values: dict[str, np.ndarray]
     t_end: np.ndarray
+    totals: dict[str, np.ndarray]
 
     def __len__(self) -> int:
         return len(self.values['cycle'])
@@ -144,47 +148,66 @@ class CycleTable:
     def rows(self) -> list[dict[str, float]]:
         return [{k: float(v[i]) for k, v in self.values.items()} for i in range(len(self))]
 
-
-def _window_metrics(cy: CycleTable, sel: slice, totals: dict[str, np.ndarray]) -> dict:
-    """Aggregate the cycles ``sel`` (whole cycles: sums of the per-cycle integrals)."""
-    T = float(np.sum(totals['T'][sel]))
-    if not len(cy['cycle'][sel]) or T <= 0:
-        return {}
-    n = len(cy['cycle'][sel])
-    out = {
-        'cycles': float(n),
-        't_start': float(cy['t_start'][sel][0]),
-        't_end': float(cy.t_end[sel][-1]),
-        'ratio': float(np.sum(totals['dphi4'][sel]) / (TWO_PI * n)),
-        'crank_speed': TWO_PI * n / T,
-        'output_speed': float(np.sum(totals['dphi4'][sel]) / T),
-        'ripple': float(np.nanmean(cy['ripple'][sel])) if np.any(np.isfinite(
-            cy['ripple'][sel])) else math.nan,
-        'ripple_max': float(np.nanmax(cy['ripple'][sel])) if np.any(np.isfinite(
-            cy['ripple'][sel])) else math.nan,
-        'twist_peak': float(np.max(cy['twist_peak'][sel])),
-        'twist_mean': float(np.sum(totals['twist'][sel]) / T),
-        'clutch_torque_peak': float(np.max(cy['clutch_torque_peak'][sel])),
-        'clutch_torque_mean': float(np.sum(totals['tc'][sel]) / T),
-        'engaged_fraction': float(np.sum(totals['engaged'][sel]) / T),
-        'switches_per_cycle': float(np.sum(cy['switches'][sel]) / n),
-        'motor_power': float(np.sum(totals['w1'][sel]) / T),
-        'output_power': float(np.sum(totals['w4'][sel]) / T),
-    }
-    with np.errstate(invalid='ignore', divide='ignore'):
+    def window(self, first: int, stop: int) -> dict[str, float]:
+        """Metrics of the whole cycles ``first`` … ``stop − 1`` (sums of their integrals, so
+        means are time means over the window); {} for an empty window."""
+        sel = slice(first, stop)
+        n = len(self.values['cycle'][sel])
+        T = float(np.sum(self.totals['period'][sel]))
+        if not n or not T > 0:
+            return {}
+        total = {key: float(np.sum(self.totals[key][sel])) for key in _TOTALS}
+        ripple = self.values['ripple'][sel]
+        out = {
+            'cycles': float(n),
+            't_start': float(self.values['t_start'][sel][0]),
+            't_end': float(self.t_end[sel][-1]),
+            'ratio': total['dphi4'] / (TWO_PI * n),
+            'crank_speed': TWO_PI * n / T,
+            'output_speed': total['dphi4'] / T,
+            'ripple': float(np.nanmean(ripple)) if np.any(np.isfinite(ripple)) else math.nan,
+            'ripple_max': float(np.nanmax(ripple)) if np.any(np.isfinite(ripple)) else math.nan,
+            'twist_peak': float(np.max(self.values['twist_peak'][sel])),
+            'twist_mean': total['twist'] / T,
+            'clutch_torque_peak': float(np.max(self.values['clutch_torque_peak'][sel])),
+            'clutch_torque_mean': total['clutch_torque'] / T,
+            'engaged_fraction': total['engaged'] / T,
+            'switches_per_cycle': float(np.sum(self.values['switches'][sel]) / n),
+            'motor_power': total['motor_work'] / T,
+            'output_power': total['output_work'] / T,
+        }
         out['load_factor'] = out['clutch_torque_peak'] / out['clutch_torque_mean'] \
             if out['clutch_torque_mean'] > 0 else math.nan
-        w1 = float(np.sum(totals['w1'][sel]))
-        out['efficiency'] = float(np.sum(totals['w4'][sel])) / w1 \
-            if w1 > 0 and abs(out['ratio']) >= DRIVEN_RATIO else math.nan
-    if abs(out['ratio']) < DRIVEN_RATIO:
-        out['ripple'] = out['ripple_max'] = math.nan
-    return out
+        out['efficiency'] = efficiency(total['output_work'], total['motor_work'], out['ratio'])
+        if abs(out['ratio']) < DRIVEN_RATIO:
+            out['ripple'] = out['ripple_max'] = math.nan
+        return out
 
 
-def cycle_metrics(trace: Trace) -> tuple[CycleTable, np.ndarray, dict[str, dict[str, float]]]:
-    """Split one run into crank cycles: (per-cycle table, cycle boundary times, per-run windows
-    'all' / 'last_quarter' → metric → value); see the module docstring."""
+def efficiency(output_work: float, motor_work: float, ratio: float) -> float:
+    """η = W4 / W1; NaN while the output is not driven (|i| < DRIVEN_RATIO) or the motor does
+    no work."""
+    if not motor_work > 0 or not abs(ratio) >= DRIVEN_RATIO:
+        return math.nan
+    return output_work / motor_work
+
+
+def physical(name: str, value: float) -> bool:
+    """False for a figure no steady state of this machine can have: an efficiency outside
+    [0, 1] (energy stored in the inertias and the shaft was released, or taken, in the window;
+    or an overhauling load), a negative ripple or engaged fraction outside [0, 1]. Reports flag
+    such figures instead of printing them as plain numbers."""
+    if not math.isfinite(value):
+        return True  # printed as n/a
+    if name in ('efficiency', 'engaged_fraction'):
+        return 0.0 <= value <= 1.0
+    if name in ('ripple', 'ripple_max', 'clutch_torque_mean', 'load_factor', 'period'):
+        return value >= 0.0
+    return True
+
+
+def cycle_metrics(trace: Trace) -> tuple[CycleTable, np.ndarray]:
+    """Split one run into crank cycles: (per-cycle table, cycle boundary times)."""
     t = trace.t
     if np.any(np.diff(t) <= 0):
         raise AnalysisError('sample times are not increasing')
@@ -223,16 +246,18 @@ def cycle_metrics(trace: Trace) -> tuple[CycleTable, np.ndarray, dict[str, dict[
     sw = np.searchsorted(trace.switch_t, tb, side='left')
     switches = np.diff(sw).astype(float) if trace.initial_engaged is not None \
         else np.full(n_cyc, np.nan)
-    with np.errstate(invalid='ignore', divide='ignore'):
+    with np.errstate(invalid='ignore', divide='ignore', over='ignore'):
         out_speed = dphi4 / T
+        ratio = dphi4 / TWO_PI
         values = {
             'cycle': np.arange(n_cyc, dtype=float),
             't_start': tb[a],
             'period': T,
             'crank_speed': TWO_PI / T,
-            'ratio': dphi4 / TWO_PI,
+            'ratio': ratio,
             'output_speed': out_speed,
-            'ripple': (w4_max - w4_min) / out_speed,
+            'ripple': np.where(np.abs(ratio) < DRIVEN_RATIO, np.nan,
+                               (w4_max - w4_min) / np.abs(out_speed)),
             'twist_peak': th_max,
             'twist_mean': twist_int / T,
             'clutch_torque_peak': tc_max,
@@ -242,20 +267,11 @@ def cycle_metrics(trace: Trace) -> tuple[CycleTable, np.ndarray, dict[str, dict[
             'switches': switches,
             'motor_power': w1_int / T,
             'output_power': w4_int / T,
-            'efficiency': w4_int / w1_int,
+            'efficiency': np.where((np.abs(ratio) < DRIVEN_RATIO) | ~(w1_int > 0), np.nan,
+                                   w4_int / w1_int),
             'crank_length': a_int / T,
             'load_torque': m4_int / T,
         }
-    idle = (np.abs(values['ratio']) < DRIVEN_RATIO) | ~(w1_int > 0)
-    values['efficiency'] = np.where(idle, np.nan, values['efficiency'])
-    values['ripple'] = np.where(np.abs(values['ratio']) < DRIVEN_RATIO, np.nan, values['ripple'])
-    cycles = CycleTable(values, tb[b])
-    totals = {'T': T, 'dphi4': dphi4, 'twist': twist_int, 'tc': tc_int, 'engaged': engaged_int,
-              'w1': w1_int, 'w4': w4_int}
-    summary = {}
-    if n_cyc:
-        summary['all'] = _window_metrics(cycles, slice(0, n_cyc), totals)
-        q = max(1, n_cyc // 4)
-        summary['last_quarter'] = _window_metrics(cycles, slice(n_cyc - q, n_cyc), totals)
-    return cycles, tb, summary
-
+    totals = {'period': T, 'dphi4': dphi4, 'twist': twist_int, 'clutch_torque': tc_int,
+              'engaged': engaged_int, 'motor_work': w1_int, 'output_work': w4_int}
+    return CycleTable(values, tb[b], totals), tb

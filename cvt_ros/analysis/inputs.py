@@ -14,7 +14,7 @@ import os
 import numpy as np
 
 from .. import interface as I
-from .bag import load_mcap
+from .bag import MAX_RUNS, load_mcap
 from .errors import AnalysisError
 from .trace import RecordingInfo, Trace, fill_derived_signals
 
@@ -28,10 +28,14 @@ def load(path: str, *, scene: str | None = None, namespace: str | None = None
     nothing can be read; read problems of a damaged file are in ``RecordingInfo.problems``."""
     if not os.path.exists(path):
         raise AnalysisError(f'{path}: no such file')
-    if os.path.isdir(path):
-        raise AnalysisError(f'{path}: is a directory, not a recording')
-    with open(path, 'rb') as f:
-        head = f.read(8)
+    if not os.path.isfile(path):
+        raise AnalysisError(f'{path}: is a directory, not a recording' if os.path.isdir(path)
+                            else f'{path}: not a regular file')
+    try:
+        with open(path, 'rb') as f:
+            head = f.read(8)
+    except OSError as exc:
+        raise AnalysisError(f'{path}: cannot read: {exc.strerror or exc}') from None
     if head == b'\x89MCAP0\r\n':
         traces, info = load_mcap(path, namespace=namespace)
     elif head[:1] in (b'\x89', b'\x00') or not head:
@@ -40,9 +44,13 @@ def load(path: str, *, scene: str | None = None, namespace: str | None = None
     else:
         traces, info = load_csv(path)
     if scene:
+        from ..physics.linkage import GrashofError
         from ..scene import load_scene
 
-        values = load_scene(scene)
+        try:
+            values = load_scene(scene)
+        except (ValueError, GrashofError) as exc:  # SceneError, ParameterError
+            raise AnalysisError(f'--scene: {exc}') from None
         for trace in traces:
             trace.parameters = values
             trace.parameters_origin = f'--scene {scene}'
@@ -55,8 +63,6 @@ def load(path: str, *, scene: str | None = None, namespace: str | None = None
     return traces, info
 
 
-
-
 # .................................................................................. CSV
 _CSV_REQUIRED = ('t', 'phi1', 'phi2', 'phi3', 'phi4', 'omega1', 'omega2', 'omega3', 'omega4')
 
@@ -67,8 +73,11 @@ def load_csv(path: str) -> tuple[list[Trace], RecordingInfo]:
     try:
         with open(path, newline='', encoding='utf-8') as f:
             text = f.read()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise AnalysisError(f'{path}: cannot read: {exc}') from None
+    except OSError as exc:
+        raise AnalysisError(f'{path}: cannot read: {exc.strerror or exc}') from None
+    except UnicodeDecodeError as exc:
+        raise AnalysisError(f'{path}: not a recording (MCAP) or a UTF-8 CSV file (byte '
+                            f'{exc.start})') from None
     lines = text.splitlines()
     if not lines:
         raise AnalysisError(f'{path}: empty file')
@@ -94,7 +103,7 @@ def load_csv(path: str) -> tuple[list[Trace], RecordingInfo]:
     if len(rows) < 2:
         raise AnalysisError(f'{path}: fewer than 2 sample rows'
                             + (f' ({info.problems[0]})' if info.problems else ''))
-    data = np.asarray(rows)
+    data = _plausible_rows(np.asarray(rows), header, info)
     col = {name: data[:, i] for i, name in enumerate(header)}
     n = len(data)
 
@@ -104,6 +113,10 @@ def load_csv(path: str) -> tuple[list[Trace], RecordingInfo]:
     t = col['t']
     cuts = np.flatnonzero(np.diff(t) < 0) + 1
     bounds = [0, *cuts.tolist(), n]
+    if len(bounds) - 1 > MAX_RUNS:
+        info.problems.append(f'the time goes back {len(cuts)} times: only the first '
+                             f'{MAX_RUNS} runs are analysed')
+        bounds = bounds[:MAX_RUNS + 1]
     traces = []
     for r in range(len(bounds) - 1):
         s = slice(bounds[r], bounds[r + 1])
@@ -125,8 +138,35 @@ def load_csv(path: str) -> tuple[list[Trace], RecordingInfo]:
                       np.column_stack([get(c)[s] for c in I.EFFORT_COLUMNS]),
                       twist, get('crank_length')[s].copy(), sw_t, sw_on, initial, False,
                       run_index=len(traces))
+        if np.any(np.isfinite(trace.crank_length)):
+            trace.crank_length_source = 'csv'
         if initial is None:
             trace.notes.append('no engaged column: clutch metrics unavailable')
         traces.append(trace)
+    if not traces:
+        raise AnalysisError(f'{path}: fewer than 2 samples in every run')
     return traces, info
+
+
+def _plausible_rows(data: np.ndarray, header: list[str], info: RecordingInfo) -> np.ndarray:
+    """Rows a run can have written: finite time and motion, finite torques in the columns the
+    file fills, a time different from the row before (a repeated row is dropped)."""
+    index = {name: i for i, name in enumerate(header)}
+    need = [index[c] for c in _CSV_REQUIRED]
+    torques = [index[c] for c in I.EFFORT_COLUMNS if c in index]
+    with np.errstate(invalid='ignore'):
+        ok = np.all(np.isfinite(data[:, need]), axis=1)
+        if torques:
+            carried = np.any(np.isfinite(data[:, torques]), axis=0)
+            ok &= ~np.any(~np.isfinite(data[:, torques]) & carried, axis=1)
+    bad = int(np.count_nonzero(~ok))
+    data = data[ok]
+    repeated = np.flatnonzero(np.diff(data[:, index['t']]) == 0) + 1
+    if len(repeated):
+        data = np.delete(data, repeated, axis=0)
+    if bad:
+        info.problems.append(f'{bad} row(s) with non-finite values skipped')
+    if len(data) < 2:
+        raise AnalysisError(f'{info.path}: fewer than 2 usable sample rows')
+    return data
 

@@ -3,10 +3,12 @@
 * ``fig2_twist_cycle.png``: torsion twist θ = φ3 − φ4 over one crank cycle (the paper's Fig. 2),
   the last complete cycle over the four before it, engaged phases shaded;
 * ``fig3_speeds_cycle.png``: angular speeds ω1..ω4 of the members over the same cycle (Fig. 3);
-* ``timeseries.png``: speeds, ratio (instantaneous and per cycle), clutch state and engaged
-  fraction, clutch and load torque over the whole run, commands marked;
-* ``step_NN_<topic>.png``: the response to each command: commanded and actual value, the ratio
-  per cycle with its 10–90 % rise and ±2 % settling, and the output speed.
+* ``timeseries.png``: speeds, ratio (instantaneous and per cycle), the clutch state (engaged /
+  overrunning), clutch and load torque, commanded and actual crank length over the whole run,
+  the steady state shaded, commands marked;
+* ``step_NN_<topic>.png``: the response to each command, titled with the command as given:
+  commanded and actual value, the ratio per cycle with its 10–90 % rise, ±2 % settling and
+  overshoot (only once it settled), and the output speed.
 
 With several runs (resets) every file name gets a ``runN_`` prefix.
 """
@@ -15,14 +17,19 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Callable
+from functools import partial
+from typing import IO
 
 import numpy as np
 
+from ..recording.outputs import OutputFiles
 from .analyze import RunAnalysis
 from .cycles import TWO_PI
+from .steps import SETTLING_BAND, StepResponse, commanded_before
 from .trace import Trace
 
-__all__ = ['plot_all']
+__all__ = ['plot_all', 'plot_files', 'step_title']
 
 DPI = 120
 MAX_POINTS = 6000   # longer series are drawn as a min/max envelope per pixel column
@@ -109,7 +116,18 @@ def _cycle_title(analysis: RunAnalysis, k: int) -> str:
             f"i = {cy['ratio'][k]:.4f}")
 
 
-def fig_twist_cycle(analysis: RunAnalysis, path: str) -> str:
+def _cycle_axes(ax, analysis: RunAnalysis, k: int, ylabel: str, title: str) -> None:
+    """Crank-angle axis 0–360° and labels of a one-cycle figure (Fig. 2/3)."""
+    ax.axhline(0.0, color='k', lw=0.6)
+    ax.set_xlim(0, 360)
+    ax.set_xticks(range(0, 361, 45))
+    ax.set_xlabel('crank angle φ1 within the cycle [deg]')
+    ax.set_ylabel(ylabel)
+    ax.set_title(f'{title}\n{_cycle_title(analysis, k)}', fontsize=11)
+    ax.grid(alpha=0.3)
+
+
+def fig_twist_cycle(analysis: RunAnalysis, path: IO[bytes] | str) -> None:
     plt = _plt()
     k = len(analysis.cycles) - 1
     fig, ax = plt.subplots(figsize=(8, 4.8))
@@ -120,26 +138,17 @@ def fig_twist_cycle(analysis: RunAnalysis, path: str) -> str:
     c = _cycle_samples(analysis, k)
     _shade_engaged(ax, analysis, k)
     ax.plot(c['angle'], c['twist'], color=COLORS['twist'], lw=1.8, label='θ = φ3 − φ4')
-    peak = int(np.argmax(c['twist']))
+    peak = int(np.nanargmax(c['twist'])) if np.any(np.isfinite(c['twist'])) else 0
     ax.plot(c['angle'][peak], c['twist'][peak], 'o', color=COLORS['twist'])
     ax.annotate(f"peak {c['twist'][peak]:.4f} rad", (c['angle'][peak], c['twist'][peak]),
                 textcoords='offset points', xytext=(8, 4), fontsize=9)
-    ax.axhline(0.0, color='k', lw=0.6)
-    ax.set_xlim(0, 360)
-    ax.set_xticks(range(0, 361, 45))
-    ax.set_xlabel('crank angle φ1 within the cycle [deg]')
-    ax.set_ylabel('torsion twist θ [rad]')
-    ax.set_title('Torsion shaft twist over one crank cycle (paper Fig. 2)\n'
-                 + _cycle_title(analysis, k), fontsize=11)
-    ax.grid(alpha=0.3)
+    _cycle_axes(ax, analysis, k, 'torsion twist θ [rad]',
+                'Torsion shaft twist over one crank cycle (paper Fig. 2)')
     ax.legend(loc='best', fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=DPI)
-    plt.close(fig)
-    return path
+    _save(plt, fig, path)
 
 
-def fig_speeds_cycle(analysis: RunAnalysis, path: str) -> str:
+def fig_speeds_cycle(analysis: RunAnalysis, path: IO[bytes] | str) -> None:
     plt = _plt()
     k = len(analysis.cycles) - 1
     c = _cycle_samples(analysis, k)
@@ -148,19 +157,10 @@ def fig_speeds_cycle(analysis: RunAnalysis, path: str) -> str:
     for j in range(4):
         name = f'omega{j + 1}'
         ax.plot(c['angle'], c[name], color=COLORS[name], lw=1.6, label=LABELS[j])
-    ax.axhline(0.0, color='k', lw=0.6)
-    ax.set_xlim(0, 360)
-    ax.set_xticks(range(0, 361, 45))
-    ax.set_xlabel('crank angle φ1 within the cycle [deg]')
-    ax.set_ylabel('angular speed [rad/s]')
-    ax.set_title('Angular speeds of the members over one crank cycle (paper Fig. 3)\n'
-                 + _cycle_title(analysis, k), fontsize=11)
-    ax.grid(alpha=0.3)
+    _cycle_axes(ax, analysis, k, 'angular speed [rad/s]',
+                'Angular speeds of the members over one crank cycle (paper Fig. 3)')
     ax.legend(loc='center left', bbox_to_anchor=(1.01, 0.5), fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=DPI)
-    plt.close(fig)
-    return path
+    _save(plt, fig, path)
 
 
 def _mark_commands(axes, trace: Trace) -> None:
@@ -175,12 +175,77 @@ def _mark_commands(axes, trace: Trace) -> None:
                          xytext=(2, -10), textcoords='offset points', fontsize=8)
 
 
-def fig_timeseries(analysis: RunAnalysis, path: str) -> str:
+def _commanded(trace: Trace, key: str, t0: float, t1: float
+               ) -> tuple[np.ndarray, np.ndarray] | None:
+    """The commanded value of ``key`` as a step signal over [t0, t1] (None if unknown)."""
+    value = commanded_before(trace, key)
+    knots, values = [t0], [value]
+    for c in trace.commands:
+        if c.key != key:
+            continue
+        if c.t <= t0:
+            values[0] = c.value
+        elif c.t < t1:
+            knots.append(c.t)
+            values.append(c.value)
+    knots.append(t1)
+    values.append(values[-1])
+    values = np.asarray(values, dtype=float)
+    return (np.asarray(knots), values) if np.any(np.isfinite(values)) else None
+
+
+def _clutch_state(ax, trace: Trace, t0: float, t1: float) -> None:
+    """The clutch state (engaged 1 / overrunning 0) as a filled step signal; a long run is drawn
+    as one band per pixel column (every switch is still there, the band shows both states)."""
+    if trace.initial_engaged is None:
+        ax.text(0.5, 0.5, 'clutch state not recorded', transform=ax.transAxes, ha='center')
+        return
+    inside = trace.switch_t[(trace.switch_t > t0) & (trace.switch_t < t1)]
+    knots = np.concatenate([[t0], inside, [t1]])
+    states = trace.engaged_at(knots)
+    ax.fill_between(knots, states, step='post', color=COLORS['engaged'], lw=0,
+                    label='clutch engaged')
+    if len(inside) <= 400:  # an outline only where the switches can be told apart
+        ax.step(knots, states, where='post', color=COLORS['omega3'], lw=0.6)
+    ax.set_ylim(-0.05, 1.25)
+    ax.set_yticks([0, 1])
+    ax.set_yticklabels(['overrun', 'engaged'])
+    ax.legend(loc='upper right', fontsize=8, ncol=2)
+
+
+def _crank_length(ax, trace: Trace, t: np.ndarray, sel: slice | np.ndarray, scale: float = 1e3
+                  ) -> None:
+    """Commanded (step) and actual crank length [mm]."""
+    commanded = _commanded(trace, 'crank_length_cmd', float(t[0]), float(t[-1]))
+    if commanded is not None:
+        ax.step(commanded[0], commanded[1] * scale, where='post', color='k', ls='--', lw=1.1,
+                label='commanded (crank_length_cmd)')
+    actual = trace.crank_length[sel]
+    if np.any(np.isfinite(actual)):
+        source = {'recorded': 'recorded', 'csv': 'from the CSV',
+                  'reconstructed': 'solved from φ1, φ2'}.get(trace.crank_length_source, '?')
+        ax.plot(*_envelope(t, actual * scale), color=COLORS['omega1'], lw=1.2,
+                label=f'actual ({source})')
+    # a constant crank length: no axis that magnifies round-off into wiggles
+    shown = [v for v in (actual * scale, None if commanded is None else commanded[1] * scale)
+             if v is not None]
+    values = np.concatenate(shown)
+    values = values[np.isfinite(values)]
+    if len(values):
+        lo, hi = float(np.min(values)), float(np.max(values))
+        pad = max(0.1 * (hi - lo), 0.5 * (max(1.0, 0.02 * abs(hi)) - (hi - lo)), 0.0)
+        ax.set_ylim(lo - pad, hi + pad)
+    ax.ticklabel_format(axis='y', useOffset=False)
+    ax.set_ylabel('crank length a [mm]')
+    ax.legend(loc='best', fontsize=8)
+
+
+def fig_timeseries(analysis: RunAnalysis, path: IO[bytes] | str) -> None:
     plt = _plt()
     tr, cy = analysis.trace, analysis.cycles
     t = tr.t
-    fig, axes = plt.subplots(4, 1, figsize=(10, 9.5), sharex=True,
-                             gridspec_kw={'height_ratios': [3, 2, 1.4, 2]})
+    fig, axes = plt.subplots(5, 1, figsize=(10, 11), sharex=True,
+                             gridspec_kw={'height_ratios': [3, 2, 1.2, 2, 1.6]})
     ax = axes[0]
     for j in (0, 3):
         name = f'omega{j + 1}'
@@ -189,40 +254,31 @@ def fig_timeseries(analysis: RunAnalysis, path: str) -> str:
         ax.step(np.append(cy['t_start'], cy.t_end[-1]),
                 np.append(cy['output_speed'], cy['output_speed'][-1]), where='post',
                 color='k', lw=1.0, label='ω4 mean per cycle')
+    steady = analysis.steady
+    if steady.found:
+        for a in axes:
+            a.axvspan(steady.t_start, steady.t_end, color='g', alpha=0.06, lw=0,
+                      label='steady state' if a is axes[0] else None)
     ax.set_ylabel('speed [rad/s]')
     ax.legend(loc='best', fontsize=8, ncol=3)
     ax.set_title(f'{os.path.basename(tr.source)}: run {tr.run_index + 1}, '
-                 f'{t[0]:.3f}–{t[-1]:.3f} s', fontsize=11)
+                 f'{t[0]:.3f}–{t[-1]:.3f} s'
+                 + ('' if steady.found else ' (no steady state)'), fontsize=11)
 
     ax = axes[1]
     with np.errstate(invalid='ignore', divide='ignore'):
         inst = tr.omega[:, 3] / tr.omega[:, 0]
     ax.plot(*_envelope(t, inst), color='0.7', lw=0.7, label='ω4/ω1 (instantaneous)')
     if len(cy):
-        ax.step(np.append(cy['t_start'], cy.t_end[-1]), np.append(cy['ratio'], cy['ratio'][-1]),
+        ratio = cy['ratio']
+        ax.step(np.append(cy['t_start'], cy.t_end[-1]), np.append(ratio, ratio[-1]),
                 where='post', color=COLORS['omega4'], lw=1.4, label='i per crank cycle')
-        lo, hi = np.nanpercentile(cy['ratio'], [1, 99])
-        pad = max(0.25 * (hi - lo), 0.05 * abs(hi), 1e-3)
-        ax.set_ylim(min(lo, np.nanmin(cy['ratio'][-len(cy) // 2:])) - pad, hi + pad)
+        _limits(ax, ratio, pad_fraction=0.25)
     ax.set_ylabel('ratio i [-]')
     ax.legend(loc='best', fontsize=8)
 
-    ax = axes[2]
-    if tr.initial_engaged is not None:
-        if len(cy) <= 60:
-            knots = np.concatenate([[t[0]], tr.switch_t, [t[-1]]])
-            states = tr.engaged_at(knots)
-            ax.step(knots, states, where='post', color=COLORS['omega3'], lw=0.8,
-                    label='engaged (1) / overrunning (0)')
-        if len(cy):
-            ax.step(np.append(cy['t_start'], cy.t_end[-1]),
-                    np.append(cy['engaged_fraction'], cy['engaged_fraction'][-1]), where='post',
-                    color='k', lw=1.2, label='engaged fraction per cycle')
-        ax.set_ylim(-0.05, 1.15)
-        ax.legend(loc='upper right', fontsize=8, ncol=2)
-    else:
-        ax.text(0.5, 0.5, 'clutch state not recorded', transform=ax.transAxes, ha='center')
-    ax.set_ylabel('clutch [-]')
+    _clutch_state(axes[2], tr, float(t[0]), float(t[-1]))
+    axes[2].set_ylabel('clutch')
 
     ax = axes[3]
     ax.plot(*_envelope(t, tr.effort[:, 1]), color=COLORS['clutch'], lw=0.7,
@@ -234,18 +290,44 @@ def fig_timeseries(analysis: RunAnalysis, path: str) -> str:
     ax.plot(*_envelope(t, tr.effort[:, 3]), color='k', ls='--', lw=1.0,
             label='load torque M4')
     ax.set_ylabel('torque [N·m]')
-    ax.set_xlabel('simulation time t [s]')
     ax.legend(loc='best', fontsize=8)
+
+    _crank_length(axes[4], tr, t, slice(None))
+    axes[4].set_xlabel('simulation time t [s]')
     for a in axes:
         a.grid(alpha=0.3)
     _mark_commands(axes, tr)
-    fig.tight_layout()
-    fig.savefig(path, dpi=DPI)
-    plt.close(fig)
-    return path
+    _save(plt, fig, path)
 
 
-def fig_step(analysis: RunAnalysis, index: int, path: str) -> str:
+def _limits(ax, values: np.ndarray, pad_fraction: float) -> None:
+    """y limits around the finite values' 1–99 % range (outliers of a start-up stay off)."""
+    finite = values[np.isfinite(values)]
+    if not len(finite):
+        return
+    lo, hi = np.percentile(finite, [1, 99])
+    pad = max(pad_fraction * (hi - lo), 0.05 * abs(hi), 1e-3)
+    ax.set_ylim(lo - pad, hi + pad)
+
+
+def _save(plt, fig, path: IO[bytes] | str) -> None:
+    try:
+        fig.tight_layout()
+        fig.savefig(path, dpi=DPI, format='png')
+    finally:
+        plt.close(fig)
+
+
+def step_title(step: StepResponse) -> str:
+    """The title of a step figure: the command as given, then what was in force before."""
+    c = step.command
+    crank = c.key == 'crank_length_cmd'
+    what, unit = ('crank length', 'm') if crank else ('load torque', 'N·m')
+    was = f' (was {step.previous:g} {unit})' if math.isfinite(step.previous) else ''
+    return f'Response to {c.key} = {c.value:g} {unit} at t = {c.t:.4f} s{was}: {what}'
+
+
+def fig_step(analysis: RunAnalysis, index: int, path: IO[bytes] | str) -> None:
     plt = _plt()
     tr, cy = analysis.trace, analysis.cycles
     step = analysis.steps[index]
@@ -257,21 +339,18 @@ def fig_step(analysis: RunAnalysis, index: int, path: str) -> str:
     t = tr.t[sel]
     fig, axes = plt.subplots(3, 1, figsize=(9, 8), sharex=True)
     ax = axes[0]
-    crank = c.key == 'crank_length_cmd'
-    scale, unit = (1e3, 'mm') if crank else (1.0, 'N·m')
-    name = 'crank length a' if crank else 'load torque M4'
-    prev = step.previous if math.isfinite(step.previous) else c.value
-    ax.step([t0, c.t, t1], [prev * scale, c.value * scale, c.value * scale], where='post',
-            color='k', ls='--', lw=1.2, label=f'command ({c.key})')
-    actual = tr.crank_length[sel] if crank else tr.effort[sel, 3]
-    if np.any(np.isfinite(actual)):
-        ax.plot(*_envelope(t, actual * scale), color=COLORS['omega1'], lw=1.2,
-                label=f'{name} (actual)')
-    ax.set_ylabel(f'{name} [{unit}]')
-    ax.legend(loc='best', fontsize=8)
-    what = 'crank length' if crank else 'load torque'
-    ax.set_title(f'Response to {what} {prev:g} → {c.value:g} {unit if not crank else "m"} '
-                 f'at t = {c.t:.4f} s', fontsize=11)
+    if c.key == 'crank_length_cmd':
+        _crank_length(ax, tr, t, sel)
+    else:
+        commanded = _commanded(tr, c.key, float(t[0]), float(t[-1]))
+        if commanded is not None:
+            ax.step(commanded[0], commanded[1], where='post', color='k', ls='--', lw=1.2,
+                    label=f'commanded ({c.key})')
+        ax.plot(*_envelope(t, tr.effort[sel, 3]), color=COLORS['omega1'], lw=1.2,
+                label='load torque M4 (actual)')
+        ax.set_ylabel('load torque M4 [N·m]')
+        ax.legend(loc='best', fontsize=8)
+    ax.set_title(step_title(step), fontsize=11)
 
     ax = axes[1]
     with np.errstate(invalid='ignore', divide='ignore'):
@@ -281,26 +360,27 @@ def fig_step(analysis: RunAnalysis, index: int, path: str) -> str:
     mid = cy['t_start'][ksel] + 0.5 * cy['period'][ksel]
     ax.plot(mid, cy['ratio'][ksel], 'o-', color=COLORS['omega4'], ms=3, lw=1.2,
             label='i per crank cycle')
-    if math.isfinite(step.ratio_before) and math.isfinite(step.ratio_after):
+    text = []
+    if step.settled and math.isfinite(step.ratio_before):
         change = step.ratio_after - step.ratio_before
-        for level, style in ((step.ratio_before, ':'), (step.ratio_after, ':')):
-            ax.axhline(level, color='k', ls=style, lw=0.8)
-        ax.axhspan(step.ratio_after - 0.02 * abs(change), step.ratio_after + 0.02 * abs(change),
-                   color='g', alpha=0.12, label='±2 % band')
-        text = []
+        for level in (step.ratio_before, step.ratio_after):
+            ax.axhline(level, color='k', ls=':', lw=0.8)
+        ax.axhspan(step.ratio_after - SETTLING_BAND * abs(change),
+                   step.ratio_after + SETTLING_BAND * abs(change), color='g', alpha=0.12,
+                   label=f'±{SETTLING_BAND:.0%} band')
         if math.isfinite(step.rise_time):
             text.append(f'rise 10–90 %: {step.rise_time * 1e3:.0f} ms')
-        text.append('settling ±2 %: ' + (f'{step.settling_time * 1e3:.0f} ms'
-                                         if math.isfinite(step.settling_time)
-                                         else 'not settled in the window'))
-        ax.text(0.99, 0.05, '\n'.join(text), transform=ax.transAxes, ha='right', va='bottom',
-                fontsize=9, bbox={'facecolor': 'white', 'alpha': 0.8, 'lw': 0})
         if math.isfinite(step.settling_time):
+            text.append(f'settling ±{SETTLING_BAND:.0%}: {step.settling_time * 1e3:.0f} ms')
             ax.axvline(c.t + step.settling_time, color='g', lw=0.9)
+        if math.isfinite(step.overshoot):
+            text.append(f'overshoot: {step.overshoot:.1%}')
+    else:
+        text.append('not settled in the window: no rise or settling time')
+    ax.text(0.99, 0.05, '\n'.join(text), transform=ax.transAxes, ha='right', va='bottom',
+            fontsize=9, bbox={'facecolor': 'white', 'alpha': 0.8, 'lw': 0})
     if np.any(ksel):
-        lo, hi = np.nanmin(cy['ratio'][ksel]), np.nanmax(cy['ratio'][ksel])
-        pad = max(0.2 * (hi - lo), 0.02 * abs(hi), 1e-3)
-        ax.set_ylim(lo - pad, hi + pad)
+        _limits(ax, cy['ratio'][ksel], pad_fraction=0.2)
     ax.set_ylabel('ratio i [-]')
     ax.legend(loc='best', fontsize=8)
 
@@ -315,26 +395,45 @@ def fig_step(analysis: RunAnalysis, index: int, path: str) -> str:
     for a in axes:
         a.axvline(c.t, color='k', ls=':', lw=0.9)
         a.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=DPI)
-    plt.close(fig)
-    return path
+    _save(plt, fig, path)
 
 
-def plot_all(analyses: list[RunAnalysis], outdir: str) -> list[str]:
-    """Write every figure of every run into ``outdir`` (created); returns the file paths."""
-    os.makedirs(outdir, exist_ok=True)
+def plot_files(analyses: list[RunAnalysis]) -> list[tuple[str, Callable[[IO[bytes]], None]]]:
+    """(file name, draw(file)) of every figure of every run."""
     files = []
     for analysis in analyses:
         prefix = f'run{analysis.trace.run_index + 1}_' if len(analyses) > 1 else ''
-
-        def out(name: str, prefix: str = prefix) -> str:
-            return os.path.join(outdir, prefix + name)
         if len(analysis.cycles):
-            files.append(fig_twist_cycle(analysis, out('fig2_twist_cycle.png')))
-            files.append(fig_speeds_cycle(analysis, out('fig3_speeds_cycle.png')))
-        files.append(fig_timeseries(analysis, out('timeseries.png')))
-        for i, step in enumerate(analysis.steps):
-            if len(analysis.cycles):
-                files.append(fig_step(analysis, i, out(f'step_{i + 1:02d}_{step.command.key}.png')))
+            files.append((prefix + 'fig2_twist_cycle.png',
+                          partial(fig_twist_cycle, analysis)))
+            files.append((prefix + 'fig3_speeds_cycle.png',
+                          partial(fig_speeds_cycle, analysis)))
+        files.append((prefix + 'timeseries.png', partial(fig_timeseries, analysis)))
+        if len(analysis.cycles):
+            for i, step in enumerate(analysis.steps):
+                files.append((prefix + f'step_{i + 1:02d}_{step.command.key}.png',
+                              partial(fig_step, analysis, i)))
     return files
+
+
+def plot_all(analyses: list[RunAnalysis], outdir: str, outputs: OutputFiles | None = None
+             ) -> list[str]:
+    """Write every figure of every run into ``outdir`` (created if missing; its parent must
+    exist) through ``outputs`` (a new :class:`OutputFiles` committed here if None): all files
+    or none. Returns the paths. Raises :class:`~cvt_ros.recording.OutputError`."""
+    own = outputs is None
+    outputs = outputs if outputs is not None else OutputFiles()
+    try:
+        folder = outputs.directory(outdir)
+        paths = []
+        for name, draw in plot_files(analyses):
+            path = os.path.join(folder, name)
+            outputs.write(path, draw, 'wb')
+            paths.append(path)
+    except BaseException:
+        if own:
+            outputs.discard()
+        raise
+    if own:
+        outputs.commit()
+    return paths

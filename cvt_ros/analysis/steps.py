@@ -1,7 +1,12 @@
 """Step responses: how the cycle-mean ratio and output speed answer each command.
 
-Works on any run's per-cycle table, so controller tests (:mod:`cvt_ros.analysis.stepinfo`) and
-``cvt-sim analyze`` share one definition.
+:func:`response_metrics` is the definition on any sampled response (times, values, the value
+before and the settled final value): 10 → 90 % rise time, settling time into ±2 % of the change for
+good, overshoot. :func:`step_responses` applies it to the cycle-mean ratio after each command of
+a run, with the final value taken only from a detected steady state (:mod:`.steady`): a ratio
+that is still moving at the end of the window has no final value, so it gets no rise or settling
+time ("not settled"). Both work on plain arrays, for any other response (e.g. closed-loop speed
+steps, :mod:`cvt_ros.analysis.stepinfo`).
 """
 
 from __future__ import annotations
@@ -12,74 +17,141 @@ from dataclasses import dataclass
 import numpy as np
 
 from .cycles import CycleTable
+from .steady import MIN_CYCLES, TOLERANCE, SteadyState, find_steady_state
 from .trace import Command, Trace
 
-__all__ = ['StepResponse', 'step_responses']
+__all__ = ['RISE_LIMITS', 'SETTLING_BAND', 'ResponseMetrics', 'StepResponse', 'commanded_before',
+           'response_metrics', 'step_responses']
+
+#: Settling band: ± this fraction of the change around the final value.
+SETTLING_BAND = 0.02
+#: Rise time from the first to the second fraction of the change.
+RISE_LIMITS = (0.1, 0.9)
+#: Cycles before a command whose mean is the value before it.
+CYCLES_BEFORE = 5
+#: The parameter each command topic sets (its value before the first command).
+COMMAND_PARAMETERS = {'crank_length_cmd': 'linkage.crank_length', 'load_torque_cmd': 'load.torque'}
+
+
+@dataclass(frozen=True)
+class ResponseMetrics:
+    """A response y(t) to a step at ``t_step`` from ``initial`` to ``final`` (times in s after
+    the step; fractions of the change). NaN where a figure does not exist."""
+
+    initial: float
+    final: float
+    rise_time: float        # first time at RISE_LIMITS[1] of the change − first at [0]
+    settling_time: float    # from the step until y stays within ±band of the change of final
+    overshoot: float        # max(0, peak − 1) as a fraction of the change
+    peak: float             # the value farthest in the direction of the change
+    peak_time: float
+
+
+def response_metrics(t: np.ndarray, y: np.ndarray, t_step: float, initial: float,
+                     final: float, *, band: float = SETTLING_BAND,
+                     rise: tuple[float, float] = RISE_LIMITS) -> ResponseMetrics:
+    """Step metrics of the response ``y`` at times ``t`` (those ≥ ``t_step`` count) to a
+    change from ``initial`` to the settled ``final`` value. The settling time is NaN when the
+    last value is still outside the band (not settled within the data)."""
+    t = np.asarray(t, dtype=float)
+    y = np.asarray(y, dtype=float)
+    keep = (t >= t_step) & np.isfinite(y)
+    t, y = t[keep], y[keep]
+    change = final - initial
+    nan = math.nan
+    if not len(t) or not math.isfinite(change) or change == 0.0:
+        return ResponseMetrics(initial, final, nan, nan, nan, nan, nan)
+    frac = (y - initial) / change
+    k = int(np.argmax(frac))
+    reached = [np.flatnonzero(frac >= level) for level in rise]
+    rise_time = float(t[reached[1][0]] - t[reached[0][0]]) if all(len(r) for r in reached) \
+        else nan
+    outside = np.flatnonzero(np.abs(frac - 1.0) > band)
+    if not len(outside):
+        settling = float(t[0] - t_step)
+    elif outside[-1] + 1 < len(t):
+        settling = float(t[outside[-1] + 1] - t_step)
+    else:
+        settling = nan
+    return ResponseMetrics(initial, final, rise_time, settling, max(0.0, float(frac[k]) - 1.0),
+                       float(y[k]), float(t[k] - t_step))
 
 
 @dataclass
 class StepResponse:
-    """The response of the cycle-mean ratio and output speed to one command."""
+    """The response of the cycle-mean ratio and output speed to one command.
+
+    ``ratio_after`` / ``speed_after``: the steady state after the command (``settled``), else
+    the last complete cycle before the window ends (``settled`` False: no rise, settling or
+    overshoot figures then)."""
 
     command: Command
-    previous: float
+    previous: float             # the value in force before (previous command or parameter)
     ratio_before: float
     ratio_after: float
     speed_before: float
     speed_after: float
-    rise_time: float        # 10 → 90 % of the ratio change [s] after the command (NaN: n/a)
-    settling_time: float    # into a ±2 % band of the change, for good [s] (NaN: not settled)
+    rise_time: float            # [s] (NaN: n/a)
+    settling_time: float        # [s] (NaN: not settled, or no change)
     window_end: float
+    settled: bool = False
+    overshoot: float = math.nan  # fraction of the ratio change
+    steady: SteadyState | None = None
 
 
-def _initial_value(trace: Trace, key: str) -> float:
-    p = trace.parameters or {}
-    name = {'crank_length_cmd': 'linkage.crank_length', 'load_torque_cmd': 'load.torque'}[key]
+def commanded_before(trace: Trace, key: str) -> float:
+    """The value of command topic ``key`` before its first command: the scene parameter."""
     try:
-        return float(p[name])
+        return float((trace.parameters or {})[COMMAND_PARAMETERS[key]])
     except (KeyError, TypeError, ValueError):
         return math.nan
 
 
-def step_responses(trace: Trace, cy: CycleTable) -> list[StepResponse]:
-    """Rise and settling time of the cycle-mean ratio after each command of ``trace`` (window:
-    until the next command or the end of the run); ``cy``: the run's cycles."""
+def step_responses(trace: Trace, cy: CycleTable, *, tolerance: float = TOLERANCE,
+                   min_cycles: int = MIN_CYCLES) -> list[StepResponse]:
+    """The response to each command of ``trace`` (window: until the next command or the end of
+    the run); ``cy``: the run's cycles; ``tolerance``/``min_cycles``: the test that the ratio
+    has settled, which gives the final value (:func:`~.steady.find_steady_state`)."""
     if not len(cy):
         return []
     mid = cy['t_start'] + 0.5 * cy['period']
     ratio, speed = cy['ratio'], cy['output_speed']
     out = []
-    last = {key: _initial_value(trace, key) for key in ('crank_length_cmd', 'load_torque_cmd')}
+    last = {key: commanded_before(trace, key) for key in COMMAND_PARAMETERS}
     commands = trace.commands
     for j, cmd in enumerate(commands):
-        previous = last[cmd.key]
+        previous = last.get(cmd.key, math.nan)
         last[cmd.key] = cmd.value
         end = commands[j + 1].t if j + 1 < len(commands) else float(trace.t[-1])
-        before = np.flatnonzero(cy.t_end <= cmd.t)[-5:]
+        before = np.flatnonzero(cy.t_end <= cmd.t)[-CYCLES_BEFORE:]
         after = np.flatnonzero((cy['t_start'] >= cmd.t) & (cy.t_end <= end))
         rb = float(np.mean(ratio[before])) if len(before) else math.nan
         sb = float(np.mean(speed[before])) if len(before) else math.nan
-        if len(after) >= 6:
-            ra = float(np.mean(ratio[after[-3:]]))
-            sa = float(np.mean(speed[after[-3:]]))
-        else:
-            ra = sa = math.nan
-        rise = settle = math.nan
-        change = ra - rb
+        steady = None
+        if len(after):
+            # settled: the ratio stays within ±tolerance of its tail mean, or within half the
+            # settling band of the change if that is wider (a ramp still under way is neither)
+            change = abs(float(ratio[after[-1]]) - rb) if math.isfinite(rb) else 0.0
+            steady = find_steady_state(cy, int(after[0]), int(after[-1]) + 1,
+                                       tolerance=tolerance, min_cycles=min_cycles,
+                                       signals=('ratio',),
+                                       floors={'ratio': 0.5 * SETTLING_BAND * change})
+        response = StepResponse(cmd, previous, rb, math.nan, sb, math.nan, math.nan, math.nan,
+                                end, steady=steady)
+        if steady is not None and steady.found:
+            window = cy.window(steady.first, steady.stop)
+            response.ratio_after, response.speed_after = window['ratio'], window['output_speed']
+            response.settled = True
+        elif len(after):
+            response.ratio_after = float(ratio[after[-1]])
+            response.speed_after = float(speed[after[-1]])
+        change = response.ratio_after - rb
         noise = float(np.std(ratio[before])) if len(before) > 1 else 0.0
-        significant = math.isfinite(change) and abs(change) > max(5.0 * noise, 1e-4 * abs(ra))
-        if len(after) >= 6 and significant:
-            frac = (ratio[after] - rb) / change
-            t_mid = mid[after]
-            outside = np.flatnonzero(np.abs(frac - 1.0) > 0.02)
-            if not len(outside):
-                settle = float(cy['t_start'][after[0]] - cmd.t)
-            elif outside[-1] < len(after) - 3:  # in the band for the last 3 cycles at least
-                settle = float(cy.t_end[after[outside[-1]]] - cmd.t)
-            i10 = np.flatnonzero(frac >= 0.1)
-            i90 = np.flatnonzero(frac >= 0.9)
-            if math.isfinite(settle) and len(i10) and len(i90):  # final value known
-                rise = float(t_mid[i90[0]] - t_mid[i10[0]])
-        out.append(StepResponse(cmd, previous, rb, ra, sb, sa, rise, settle, end))
+        significant = math.isfinite(change) and \
+            abs(change) > max(5.0 * noise, 1e-4 * abs(response.ratio_after))
+        if response.settled and significant:
+            m = response_metrics(mid[after], ratio[after], cmd.t, rb, response.ratio_after)
+            response.rise_time, response.settling_time = m.rise_time, m.settling_time
+            response.overshoot = m.overshoot
+        out.append(response)
     return out
-

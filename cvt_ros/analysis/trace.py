@@ -56,6 +56,9 @@ class Trace:
     scene: str = ''
     run_index: int = 0
     notes: list[str] = field(default_factory=list)
+    #: where ``crank_length`` comes from: 'recorded' (a topic of the recording), 'csv',
+    #: 'reconstructed' (solved from φ1, φ2 and the geometry) or '' (unknown: all NaN)
+    crank_length_source: str = ''
 
     @property
     def n(self) -> int:
@@ -107,6 +110,7 @@ def fill_derived_signals(trace: Trace) -> None:
 
 
 def _fill_crank_length(trace: Trace) -> None:
+    """Only old recordings need this: newer ones carry the actual crank length."""
     if np.all(np.isnan(trace.crank_length)) and trace.parameters:
         p = trace.parameters
         try:
@@ -114,6 +118,7 @@ def _fill_crank_length(trace: Trace) -> None:
                 trace.phi[:, 0], trace.phi[:, 1], p['linkage.rocker_length'],
                 p['linkage.coupler_length'], p['linkage.pivot_distance'],
                 p['linkage.assembly_mode'])
+            trace.crank_length_source = 'reconstructed'
         except (KeyError, TypeError, ValueError):
             pass
 

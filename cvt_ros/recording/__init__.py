@@ -24,11 +24,13 @@ from .definitions import (
 from .errors import (
     LogTimeError,
     MessageDefinitionError,
+    OutputError,
     RecordingError,
     RecordingReadError,
     RecordingReadWarning,
     ReplayError,
 )
+from .outputs import OutputFiles
 from .qos import DURATION_INFINITE, offered_qos_profiles_yaml, qos_profile_dict
 from .reader import BagMessage, BagSummary, TopicSummary, read_messages, recover, summary
 from .writer import DEFAULT_CHUNK_SIZE, BagWriter
@@ -42,6 +44,8 @@ __all__ = [
     'LogTimeError',
     'MessageDefinition',
     'MessageDefinitionError',
+    'OutputError',
+    'OutputFiles',
     'RecordingError',
     'RecordingReadError',
     'RecordingReadWarning',

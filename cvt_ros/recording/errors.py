@@ -47,6 +47,11 @@ class RecordingReadError(RecordingError):
                          f'{messages_read} message(s) were readable')
 
 
+class OutputError(RecordingError):
+    """An output file cannot be written (no such directory, a directory, an input of the
+    command, disk full); the text names the path and the reason. Nothing partial is left."""
+
+
 class RecordingReadWarning(UserWarning):
     """Issued instead of :class:`RecordingReadError` when reading with ``strict=False``."""
 

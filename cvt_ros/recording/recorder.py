@@ -38,6 +38,7 @@ cost per message.
 from __future__ import annotations
 
 import datetime
+import math
 import os
 import sys
 import threading
@@ -45,6 +46,7 @@ from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 from .. import interface as I
+from ..solver.output import COL
 from .errors import RecordingError
 from .writer import DEFAULT_CHUNK_SIZE, BagWriter
 
@@ -59,6 +61,12 @@ METADATA_NAME = 'cvt_ros'
 PARAMETER_CHANGE_NAME = 'cvt_ros.parameter_change'
 #: Data is on disk (in complete chunks) at most this long after it was written [s].
 FLUSH_INTERVAL = 0.5
+#: Sample-row columns behind joint_states' position, velocity and effort, joint by joint, the
+#: actuator (crank length) fifth in each; its rate and force come from elsewhere.
+_SAMPLE_FIELDS = ([COL[c] for c in I.POSITION_COLUMNS] + [COL['crank_length']]
+                  + [COL[c] for c in I.VELOCITY_COLUMNS] + [COL['crank_length']]
+                  + [COL[c] for c in I.EFFORT_COLUMNS] + [COL['crank_length']])
+_RATE_SLOT, _FORCE_SLOT = 9, 14
 
 
 def _ensure_ament_prefix() -> None:
@@ -88,7 +96,9 @@ class SimulationRecorder:
     ``topic_names``: interface key → fully qualified topic name, overriding ``namespace`` (the
     node passes its resolved names, remappings included). Keys are those of
     :data:`cvt_ros.interface.TOPICS`.
-    ``joint_names``: names in joint_states (the node's ``joint_prefix`` applied).
+    ``joint_names``: the four joint names J1..J4 in joint_states (the node's ``joint_prefix``
+    applied); :meth:`record_sample` adds the actuator joint (``crank_length`` with the same
+    prefix), as the node publishes it.
     ``parameters``: validated scene values (dotted name → value), stored in the ``cvt_ros``
     metadata record; ``scene``: the scene's name or path; ``source``: who recorded.
     ``extra_topics``: more (topic, type, qos) to register, for :meth:`write`.
@@ -114,6 +124,10 @@ class SimulationRecorder:
         self.joint_names = tuple(joint_names)
         if len(self.joint_names) != 4:
             raise ValueError(f'joint_names must name 4 joints, got {self.joint_names!r}')
+        prefix = self.joint_names[0][:-len(I.JOINTS[0])] \
+            if self.joint_names[0].endswith(I.JOINTS[0]) else ''
+        self._sample_names = (*self.joint_names, prefix + I.ACTUATOR_JOINT)
+        self._encoder = I.JointStateEncoder(self._sample_names)
         self._on_error = on_error
         self._lock = threading.Lock()
         self._error: Exception | None = None
@@ -140,7 +154,7 @@ class SimulationRecorder:
                 'source': source,
                 'scene': scene,
                 'parameters': parameters_yaml(parameters or {}),
-                'joint_names': ','.join(self.joint_names),
+                'joint_names': ','.join(self._sample_names),
                 'topics': yaml.safe_dump(dict(names), sort_keys=True),
                 'created': datetime.datetime.now(datetime.UTC).isoformat(
                     timespec='seconds'),
@@ -229,11 +243,16 @@ class SimulationRecorder:
         self._writer._add_metadata_raw(name, {str(k): str(v) for k, v in data.items()})
 
     # ------------------------------------------------------------------ typed recording
-    def record_sample(self, row: Any) -> bool:
+    def record_sample(self, row: Any, crank_rate: float = math.nan) -> bool:
         """A sample row (``cvt_ros.solver.output.COLUMNS``): joint_states stamped with its
-        time (no /clock: see :meth:`record_clock`)."""
+        time, J1..J4 and the actuator joint (position = the actual crank length, velocity =
+        ``crank_rate`` [m/s], effort NaN: not modelled), the node's layout; no /clock (see
+        :meth:`record_clock`)."""
         ns = I.stamp_ns(row[0])
-        data = I.joint_state_cdr(row, ns, self.joint_names)
+        values = row.take(_SAMPLE_FIELDS).tolist() if hasattr(row, 'take') \
+            else [float(row[i]) for i in _SAMPLE_FIELDS]
+        values[_RATE_SLOT], values[_FORCE_SLOT] = crank_rate, math.nan
+        data = self._encoder.encode(*divmod(ns, 1_000_000_000), values)
         return self._write(self.topics['joint_states'], data, ns, True)
 
     def record_clock(self, t: float) -> bool:
@@ -301,17 +320,21 @@ def record_run(recorder: SimulationRecorder, result: Any, *, clock: bool = True)
     switches = [s for s in result.switches if s.kind != 'graze']
     if len(samples) == 0:
         return 0
-    from ..solver.output import COL
+    import numpy as np
+
+    # the actuator moves at a constant rate between its corners: differences of the samples
+    a, t = samples[:, COL['crank_length']], samples[:, COL['t']]
+    rates = np.gradient(a, t) if len(samples) > 1 else np.zeros(len(samples))
 
     t0 = float(samples[0, COL['t']])
     count = int(recorder.record_clutch_state(bool(samples[0, COL['engaged']]), t0))
     k = 0
-    for row in samples:
+    for row, rate in zip(samples, rates, strict=True):
         ns = I.stamp_ns(row[0])
         while k < len(switches) and I.stamp_ns(switches[k].t) <= ns:
             count += recorder.record_switch(switches[k])
             k += 1
-        if not recorder.record_sample(row):
+        if not recorder.record_sample(row, float(rate)):
             return count
         count += 1
         if clock:

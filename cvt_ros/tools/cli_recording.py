@@ -1,8 +1,8 @@
 """``cvt-sim`` parsers for recordings: replay, analyze, export, recover (added to cli.py's parser).
 
-The commands are in recording_commands.py: each checks its inputs, calls the library and returns
-an exit code: 0 done, 1 the input was damaged (partial results were produced), 2 nothing could
-be done. Errors are one line on stderr, never a traceback.
+The commands are in cvt_ros/cli/recording.py: each checks its inputs, calls the library and
+returns an exit code: 0 done, 1 the input was damaged (partial results were produced), 2 nothing
+could be done. Errors are one line on stderr, never a traceback.
 """
 
 from __future__ import annotations
@@ -28,6 +28,26 @@ def _seconds(text: str) -> float:
         raise argparse.ArgumentTypeError(f'{text!r} is not a number') from None
     if not 0.0 <= value < float('inf'):
         raise argparse.ArgumentTypeError(f'{text!r} must be a finite number ≥ 0')
+    return value
+
+
+def _fraction(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'{text!r} is not a number') from None
+    if not 0.0 < value < 1.0:
+        raise argparse.ArgumentTypeError(f'{text!r} must be in (0, 1)')
+    return value
+
+
+def _count(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'{text!r} is not a whole number') from None
+    if not 2 <= value <= 1_000_000:
+        raise argparse.ArgumentTypeError(f'{text!r} must be in [2, 1000000]')
     return value
 
 
@@ -60,9 +80,14 @@ def add_parsers(sub: Any) -> None:
                         'energy) and plots of a recording or CSV',
         description='Read a recording of the node or of `cvt-sim run --mcap` (or a CSV of '
                     '`cvt-sim run --csv` / `cvt-sim export`), split it into crank cycles and '
-                    'print per-run and per-cycle metrics (definitions: docs/recording.md).')
+                    'print, per run, the whole-run figures (start-up included: the peaks) and '
+                    'the steady-state figures (steady state detected from the cycle means, or '
+                    '"none"), the per-cycle table and the response to each command '
+                    '(definitions: docs/recording.md). Outputs are written completely or not '
+                    'at all, never onto the input.')
     analyze.add_argument('file', help='MCAP recording or CSV')
-    analyze.add_argument('--plots', metavar='DIR', help='write PNG figures into DIR')
+    analyze.add_argument('--plots', metavar='DIR',
+                         help='write PNG figures into DIR (created if missing)')
     analyze.add_argument('--scene', metavar='SCENE',
                          help='scene (name or .yaml) for the parameters, when the file has none '
                               '(a CSV): needed for the energy residual')
@@ -72,6 +97,13 @@ def add_parsers(sub: Any) -> None:
                          help='per-cycle rows to print: the last N (default 10), all, or 0')
     analyze.add_argument('--cycles-csv', metavar='FILE', help='write every cycle\'s metrics')
     analyze.add_argument('--json', metavar='FILE', help='write all results as JSON')
+    analyze.add_argument('--steady-tol', type=_fraction, default=5e-3, metavar='X',
+                         help='steady state: the cycle means of crank and output speed, ratio, '
+                              'motor and output power stay within ±X of their mean (default '
+                              '0.005 = ±0.5 %%)')
+    analyze.add_argument('--steady-cycles', type=_count, default=10, metavar='N',
+                         help='steady state: for at least N crank cycles at the end of the run '
+                              '(or of a step\'s window; default 10)')
     analyze.set_defaults(func=_analyze)
 
     export = sub.add_parser(
@@ -100,22 +132,22 @@ def add_parsers(sub: Any) -> None:
 
 
 def _replay(args: Any) -> int:
-    from .recording_commands import replay_command
+    from ..cli.recording import replay_command
     return replay_command(args)
 
 
 def _analyze(args: Any) -> int:
     import matplotlib
     matplotlib.use('Agg')
-    from .recording_commands import analyze_command
+    from ..cli.recording import analyze_command
     return analyze_command(args)
 
 
 def _export(args: Any) -> int:
-    from .recording_commands import export_command
+    from ..cli.recording import export_command
     return export_command(args)
 
 
 def _recover(args: Any) -> int:
-    from .recording_commands import recover_command
+    from ..cli.recording import recover_command
     return recover_command(args)

@@ -1,4 +1,5 @@
-"""The commands of ``cvt-sim replay / analyze / export / recover`` (parsed in cli_recording.py).
+"""The commands of ``cvt-sim replay / analyze / export / recover`` (parsed in
+tools/cli_recording.py until that moves here).
 
 Each command checks its inputs, calls the library (:mod:`cvt_ros.recording`,
 :mod:`cvt_ros.analysis`), turns its results into output and its typed errors into one line on
@@ -64,26 +65,57 @@ def replay_command(args: Any) -> int:
 
 # ---------------------------------------------------------------------------------- analyze
 def _parse_cycles(text: str) -> int | None:
-    return None if text == 'all' else int(text)
+    if text == 'all':
+        return None
+    value = int(text)
+    if value < 0:
+        raise ValueError(text)
+    return value
+
+
+def _inputs(args: Any) -> list[str]:
+    """The files a command reads: never an output."""
+    inputs = [args.file]
+    scene = getattr(args, 'scene', None)
+    if scene and os.path.exists(scene):
+        inputs.append(scene)
+    return inputs
 
 
 def analyze_command(args: Any) -> int:
-    """0 = all read, 1 = damaged file (partial results printed), 2 = nothing usable."""
+    """0 = all read, 1 = damaged file (partial results printed), 2 = nothing usable or an
+    output cannot be written (then no output file is left)."""
     from ..analysis import AnalysisError, analyze_trace, load
     from ..analysis.report import format_run, to_json, write_cycles_csv
+    from ..recording import OutputError, OutputFiles
 
+    outputs = OutputFiles(inputs=_inputs(args))
+    try:
+        cycles = _parse_cycles(args.cycles)
+    except ValueError:
+        _error('analyze', f'--cycles expects a number ≥ 0 or "all", got {args.cycles!r}')
+        return 2
+    try:  # refuse a bad target before the work
+        for path in (args.cycles_csv, args.json):
+            if path:
+                outputs.check(path)
+        if args.plots:
+            outputs.check(args.plots, directory=True)
+    except OutputError as exc:
+        _error('analyze', str(exc))
+        return 2
     try:
         traces, info = load(args.file, scene=args.scene, namespace=args.namespace)
+        analyses = []
+        for trace in traces:
+            try:
+                analyses.append(analyze_trace(trace, tolerance=args.steady_tol,
+                                              min_cycles=args.steady_cycles))
+            except AnalysisError as exc:
+                raise AnalysisError(f'run {trace.run_index + 1}: {exc}') from None
     except AnalysisError as exc:
         _error('analyze', str(exc))
         return 2
-    analyses = []
-    for trace in traces:
-        try:
-            analyses.append(analyze_trace(trace))
-        except AnalysisError as exc:
-            _error('analyze', f'run {trace.run_index + 1}: {exc}')
-            return 2
     head = f'recording        {info.path} ({info.kind}'
     if info.source:
         head += f', {info.source}'
@@ -95,31 +127,31 @@ def analyze_command(args: Any) -> int:
                                               for name, (_, count) in sorted(info.topics.items())))
     if len(analyses) > 1:
         print(f'runs             {len(analyses)} (simulation time went back: ~/reset)')
-    try:
-        cycles = _parse_cycles(args.cycles)
-    except ValueError:
-        _error('analyze', f'--cycles expects a number or "all", got {args.cycles!r}')
-        return 2
     for analysis in analyses:
         print(format_run(analysis, cycles))
-    if args.cycles_csv:
-        n = write_cycles_csv(args.cycles_csv, analyses)
-        print(f'per-cycle table  {n} rows → {args.cycles_csv}')
-    if args.json:
-        import json
+    written = []
+    try:
+        with outputs:
+            if args.cycles_csv:
+                n = outputs.write(args.cycles_csv, lambda f: write_cycles_csv(f, analyses))
+                written.append(f'per-cycle table  {n} rows → {args.cycles_csv}')
+            if args.json:
+                import json
 
-        with open(args.json, 'w', encoding='utf-8') as f:
-            json.dump(to_json(analyses, info), f, indent=1)
-        print(f'json             → {args.json}')
-    if args.plots:
-        from ..analysis.plots import plot_all
+                data = to_json(analyses, info)
+                outputs.write(args.json, lambda f: json.dump(data, f, indent=1,
+                                                              allow_nan=False))
+                written.append(f'json             → {args.json}')
+            if args.plots:
+                from ..analysis.plots import plot_all
 
-        try:
-            files = plot_all(analyses, args.plots)
-        except OSError as exc:
-            _error('analyze', f'cannot write plots to {args.plots}: {exc}')
-            return 2
-        print(f'plots            {len(files)} PNG files → {args.plots}')
+                files = plot_all(analyses, args.plots, outputs)
+                written.append(f'plots            {len(files)} PNG files → {args.plots}')
+    except OutputError as exc:
+        _error('analyze', f'{exc} (no output file was written)')
+        return 2
+    for line in written:
+        print(line)
     if info.problems:
         _error('analyze', f'{args.file}: {info.problems[0]}'
                + (f' (+{len(info.problems) - 1} more)' if len(info.problems) > 1 else '')
@@ -130,26 +162,36 @@ def analyze_command(args: Any) -> int:
 
 # ---------------------------------------------------------------------------------- export
 def export_command(args: Any) -> int:
-    """0 = exported, 1 = damaged input (the readable part exported), 2 = nothing exported."""
+    """0 = exported, 1 = damaged input (the readable part exported), 2 = nothing exported
+    (unusable input, or an output that cannot be written: then none is left)."""
     from ..analysis import AnalysisError, load
     from ..analysis.export import export_csv, export_events
+    from ..recording import OutputError, OutputFiles
 
+    outputs = OutputFiles(inputs=_inputs(args))
+    try:
+        outputs.check(args.csv)
+        if args.events:
+            outputs.check(args.events)
+    except OutputError as exc:
+        _error('export', str(exc))
+        return 2
     try:
         traces, info = load(args.file, scene=args.scene, namespace=args.namespace)
     except AnalysisError as exc:
         _error('export', str(exc))
         return 2
     try:
-        with open(args.csv, 'w', encoding='utf-8', newline='') as f:
-            rows = export_csv(traces, f)
-        print(f'samples          {rows} rows → {args.csv}')
-        if args.events:
-            with open(args.events, 'w', encoding='utf-8', newline='') as f:
-                n = export_events(traces, f)
-            print(f'events           {n} rows → {args.events}')
-    except OSError as exc:
-        _error('export', f'cannot write: {exc}')
+        with outputs:
+            rows = outputs.write(args.csv, lambda f: export_csv(traces, f))
+            events = outputs.write(args.events, lambda f: export_events(traces, f)) \
+                if args.events else None
+    except OutputError as exc:
+        _error('export', f'{exc} (no output file was written)')
         return 2
+    print(f'samples          {rows} rows → {args.csv}')
+    if events is not None:
+        print(f'events           {events} rows → {args.events}')
     if info.problems:
         _error('export', f'{args.file}: {info.problems[0]}; the readable part was exported')
         return 1
