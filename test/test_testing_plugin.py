@@ -49,3 +49,9 @@ def test_a_user_test_file_runs_with_the_plugin(tmp_path):
                             'load_step', str(tmp_path)], capture_output=True, text=True,
                            timeout=600, cwd=tmp_path, env=env)
     assert other.returncode == 1 and '1 failed' in other.stdout and "'offline'" in other.stdout
+
+
+def test_plugin_names_the_harness_back_ends():
+    from cvt_ros.scenario import BACKENDS
+    from cvt_ros.testing.plugin import BACKENDS as PLUGIN_BACKENDS
+    assert PLUGIN_BACKENDS == BACKENDS
