@@ -346,6 +346,22 @@ except KeyboardInterrupt:
 '''
 
 
+def _progress_until(proc, sim_ns, wall_ns):
+    """Read the live child's progress lines (simulation ns, monotonic ns) until it has run
+    ``sim_ns`` of simulated time over at least ``wall_ns`` of wall time: a slow machine only
+    takes longer."""
+    progress = []
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        fields = proc.stdout.readline().split()
+        if len(fields) != 2:
+            break
+        progress.append((int(fields[0]), int(fields[1])))
+        if progress[-1][0] >= sim_ns and progress[-1][1] - progress[0][1] >= wall_ns:
+            break
+    return progress
+
+
 def _start_live(path, mode):
     proc = subprocess.Popen([sys.executable, '-c', LIVE_CHILD, str(path), mode], env=_env(),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -361,7 +377,7 @@ def _start_live(path, mode):
 def test_signal_finishes_a_valid_file(tmp_path, signum, mode):
     path = tmp_path / 'signalled.mcap'
     proc = _start_live(path, mode)
-    time.sleep(0.8)
+    _progress_until(proc, 400_000_000, 0)
     proc.send_signal(signum)
     out, err = proc.communicate(timeout=30)
     assert proc.returncode == 0, err
@@ -379,12 +395,12 @@ def test_signal_finishes_a_valid_file(tmp_path, signum, mode):
 def test_sigkill_loses_at_most_the_last_second_and_recovers(tmp_path):
     path = tmp_path / 'killed.mcap'
     proc = _start_live(path, 'handler')
-    time.sleep(2.3)
+    progress = _progress_until(proc, 1_600_000_000, 2_000_000_000)
     kill_ns = time.monotonic_ns()
     proc.kill()
     out, _ = proc.communicate(timeout=10)
     assert proc.returncode == -signal.SIGKILL
-    progress = [tuple(map(int, line.split())) for line in out.splitlines()]
+    progress += [tuple(map(int, line.split())) for line in out.splitlines()]
     must = max(t for t, wall in progress if wall <= kill_ns - 1_000_000_000)
     assert must >= 500_000_000, progress[-3:]
     fixed = tmp_path / 'killed.recovered.mcap'

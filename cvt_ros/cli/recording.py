@@ -200,28 +200,35 @@ def export_command(args: Any) -> int:
 
 # ---------------------------------------------------------------------------------- recover
 def recover_command(args: Any) -> int:
-    """0 = recovered, 1 = nothing readable (an empty file was written), 2 = cannot recover."""
-    from ..recording import RecordingError, recover, summary
+    """0 = recovered, 1 = nothing readable (an empty, finished file was written), 2 = cannot
+    recover (not an MCAP file, a bad or unwritable target: then nothing is left there)."""
+    from ..recording import RecordingError, recover_file, summary
 
     out = args.output
     if not out:
         root = args.file[:-5] if args.file.endswith('.mcap') else args.file
         out = root + '.recovered.mcap'
-    if not os.path.exists(args.file):
-        _error('recover', f'{args.file}: no such file')
+    if not os.path.isfile(args.file):
+        _error('recover', f'{args.file}: ' + ('is a directory' if os.path.isdir(args.file)
+                                              else 'no such file'))
         return 2
     try:
-        count = recover(args.file, out, overwrite=args.overwrite)
-    except (RecordingError, ValueError) as exc:
+        result = recover_file(args.file, out, overwrite=args.overwrite)
+    except RecordingError as exc:
         _error('recover', str(exc))
         return 2
-    info = summary(out)
-    if count == 0:
-        _error('recover', f'{args.file}: no readable message (an empty file was written to '
-                          f'{out})')
+    for problem in result.problems:
+        print(f'skipped/damaged  {problem}')
+    if result.skipped:
+        print(f'                 {result.skipped} message record(s) did not check out against '
+              'their chunk, channel or schema and were left out')
+    if result.messages == 0:
+        _error('recover', f'{args.file}: no readable message (an empty recording was written '
+                          f'to {out})')
         return 1
+    info = summary(out)
     span = info.duration_ns * 1e-9
-    print(f'recovered        {count} messages ({span:.3f} s) → {out}')
+    print(f'recovered        {result.messages} messages ({span:.3f} s) → {out}')
     for name, topic in sorted(info.topics.items()):
-        print(f'  {name:32s} {topic.type_name:36s} {topic.message_count}')
+        print(f'  {name[:60]:32s} {topic.type_name[:60]:36s} {topic.message_count}')
     return 0

@@ -32,7 +32,8 @@ from .errors import (
 )
 from .outputs import OutputFiles
 from .qos import DURATION_INFINITE, offered_qos_profiles_yaml, qos_profile_dict
-from .reader import BagMessage, BagSummary, TopicSummary, read_messages, recover, summary
+from .reader import BagMessage, BagSummary, TopicSummary, read_messages, summary
+from .recover import Recovery, recover, recover_file
 from .writer import DEFAULT_CHUNK_SIZE, BagWriter
 
 __all__ = [
@@ -49,6 +50,7 @@ __all__ = [
     'RecordingError',
     'RecordingReadError',
     'RecordingReadWarning',
+    'Recovery',
     'ReplayError',
     'SimulationRecorder',
     'TopicSummary',
@@ -61,6 +63,7 @@ __all__ = [
     'read_messages',
     'record_run',
     'recover',
+    'recover_file',
     'summary',
     'type_description_hash',
     'type_name_of',

@@ -8,8 +8,18 @@ A chunk whose CRC does not match is skipped and reading continues with the next 
 as the record framing is intact.
 
 :func:`summary` uses the file's summary section when it is intact (fast, like ``ros2 bag
-info``) and falls back to a scan. :func:`recover` rewrites the readable part into a finished
-file.
+info``) and falls back to a scan. :func:`~cvt_ros.recording.recover.recover` rewrites the
+readable part into a finished file.
+
+Only messages that were recorded get through. A first pass over the record headers learns the
+file's structure; then each message is checked against its context: a CRC-verified chunk vouches
+for its messages; in a file whose messages live in chunks, a Message record outside them is
+damage (a MessageIndex or other record whose opcode a bit flip turned into Message's), and so is
+a chunk without a CRC among chunks that carry one; a message no CRC vouches for must lie in its
+chunk's time range and be a CDR message of its channel's schema (:mod:`.cdr_check`). Channels
+lost with a damaged chunk come from the summary section when its CRC checks out. Chunks are
+inflated to at most their declared size (≤ :data:`MAX_CHUNK_BYTES`), so a hostile file costs
+no more memory than that. Everything skipped is reported.
 """
 
 from __future__ import annotations
@@ -27,7 +37,8 @@ from typing import Any
 
 from .errors import MessageDefinitionError, RecordingReadError, RecordingReadWarning
 
-__all__ = ['BagMessage', 'BagSummary', 'TopicSummary', 'read_messages', 'recover', 'summary']
+__all__ = ['MAX_CHUNK_BYTES', 'BagMessage', 'BagSummary', 'TopicSummary', 'read_messages',
+           'summary']
 
 _MAGIC = b'\x89MCAP0\r\n'
 _OP_HEADER, _OP_FOOTER, _OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK = 1, 2, 3, 4, 5, 6
@@ -116,8 +127,122 @@ class BagSummary:
         return self.end_time_ns - self.start_time_ns
 
 
+#: A chunk may declare at most this many uncompressed bytes (ours hold 64 KiB, rosbag2's
+#: ~1 MiB): a hostile size would otherwise be allocated, or a small compressed chunk inflated.
+MAX_CHUNK_BYTES = 256 << 20
+#: Problems kept word for word; more are counted.
+MAX_PROBLEMS = 50
+_CHUNK_HEAD = struct.Struct('<QQQI')       # message start/end time, uncompressed size, CRC
+_FOOTER = struct.Struct('<BQQQI')          # opcode, length, summary start, offsets start, CRC
+
+
+@dataclass
+class _Structure:
+    """What a first, header-only pass over the file tells about the records before any is
+    trusted: whether messages live in chunks and whether chunks carry CRCs (then a message
+    outside a chunk, or a chunk without a CRC, can only be damage), and the schemas and
+    channels of a summary section whose CRC checks out (context for chunks whose own
+    definitions were lost)."""
+
+    chunks: int = 0
+    chunks_with_crc: int = 0
+    summary_schemas: dict[int, Any] = field(default_factory=dict)
+    summary_channels: dict[int, Any] = field(default_factory=dict)
+
+
+def _structure(f: Any, size: int) -> _Structure:
+    out = _Structure()
+    pos = 8
+    summary_at = None      # where the walk found the summary section (after DataEnd)
+    f.seek(pos)
+    while pos + 9 <= size:
+        head = f.read(9)
+        if len(head) < 9:
+            break
+        op, length = _REC_HEAD.unpack(head)
+        if op == 0 or 0x10 <= op < 0x80 or length > size - pos - 9:
+            break
+        if op == _OP_CHUNK and length >= _CHUNK_HEAD.size and summary_at is None:
+            out.chunks += 1
+            out.chunks_with_crc += _CHUNK_HEAD.unpack(f.read(_CHUNK_HEAD.size))[3] != 0
+        elif op == _OP_DATA_END:
+            summary_at = pos + 9 + length
+        elif op == _OP_FOOTER:
+            break
+        pos += 9 + length
+        f.seek(pos)
+    _summary_context(f, size, out, summary_at)
+    return out
+
+
+def _summary_context(f: Any, size: int, out: _Structure, summary_at: int | None) -> None:
+    """Schemas and channels of the summary section, if its CRC (in the footer) checks out.
+    The section is where the walk found it (bytes inserted or cut before it move it, they do
+    not change it), else where the footer says."""
+    from mcap.data_stream import ReadDataStream
+    from mcap.records import Channel, Schema
+
+    if size < 8 + _FOOTER.size + 8:
+        return
+    footer_at = size - 8 - _FOOTER.size
+    f.seek(footer_at)
+    tail = f.read(_FOOTER.size + 8)
+    if tail[-8:] != _MAGIC:
+        return
+    op, length, start, _, crc = _FOOTER.unpack(tail[:_FOOTER.size])
+    if op != _OP_FOOTER or crc == 0:
+        return
+    for begin in dict.fromkeys((summary_at, start)):
+        if begin is None or not 8 < begin <= footer_at:
+            continue
+        f.seek(begin)
+        covered = f.read(footer_at + 1 + 8 + 8 + 8 - begin)
+        if zlib.crc32(covered) == crc:
+            break
+    else:
+        return
+    i, end = 0, footer_at - begin
+    while i + 9 <= end:
+        rop, rlen = _REC_HEAD.unpack_from(covered, i)
+        body = covered[i + 9:i + 9 + rlen]
+        i += 9 + rlen
+        try:
+            if rop == _OP_SCHEMA:
+                schema = Schema.read(ReadDataStream(io.BytesIO(body)))
+                out.summary_schemas[schema.id] = schema
+            elif rop == _OP_CHANNEL:
+                channel = Channel.read(ReadDataStream(io.BytesIO(body)))
+                out.summary_channels[channel.id] = channel
+        except Exception:  # noqa: BLE001 - a summary that does not parse gives no context
+            return
+
+
+def _decompress(compression: str, data: bytes, size: int) -> bytes:
+    """A chunk's records, inflated to at most ``size`` bytes (ValueError otherwise)."""
+    if size > MAX_CHUNK_BYTES:
+        raise ValueError(f'chunk declares {size} uncompressed bytes (more than '
+                         f'{MAX_CHUNK_BYTES >> 20} MiB)')
+    if compression == '':
+        out = data
+    elif compression == 'zstd':
+        import zstandard
+
+        reader = zstandard.ZstdDecompressor().stream_reader(io.BytesIO(data))
+        out = reader.read(size + 1)
+    elif compression == 'lz4':
+        import lz4.frame
+
+        out = lz4.frame.LZ4FrameDecompressor().decompress(data, max_length=size + 1)
+    else:
+        raise ValueError(f'unknown chunk compression {compression[:20]!r}')
+    if len(out) != size:
+        raise ValueError(f'chunk holds {len(out)} bytes, {size} declared')
+    return bytes(out)
+
+
 class _Scan:
-    """Record-by-record walk of an MCAP file that notes problems instead of raising."""
+    """Record-by-record walk of an MCAP file that notes problems instead of raising, and lets
+    through only messages that check out (:meth:`records`)."""
 
     def __init__(self, path: str | os.PathLike[str]):
         self.path = os.fspath(path)
@@ -127,6 +252,7 @@ class _Scan:
         except OSError as exc:
             raise RecordingReadError(self.path, [f'cannot open: {exc.strerror or exc}']) from exc
         self.problems: list[str] = []
+        self.more_problems = 0
         self.problem_offset: int | None = None
         self.header: Any = None
         self.schemas: dict[int, Any] = {}
@@ -135,17 +261,83 @@ class _Scan:
         self.statistics: Any = None
         self.complete = False
         self.reached_data_end = False
+        self.skipped = 0                   # message records that did not check out
+        self._shapes: dict[int, Any] = {}
+        self._unknown_channels: set[int] = set()
+        try:
+            self.structure = _structure(self._file, self.size) if self.size >= 8 \
+                else _Structure()
+            self._file.seek(0)
+        except OSError as exc:
+            self._file.close()
+            raise RecordingReadError(self.path, [f'cannot read: {exc.strerror or exc}']) from exc
 
     def close(self) -> None:
         self._file.close()
 
     def _problem(self, offset: int, text: str) -> None:
-        if self.problem_offset is None:
+        if self.problem_offset is None and offset >= 0:
             self.problem_offset = offset
-        self.problems.append(text)
+        if len(self.problems) < MAX_PROBLEMS:
+            self.problems.append(text)
+        else:
+            self.more_problems += 1
 
+    def _skip(self, offset: int, text: str) -> None:
+        self.skipped += 1
+        self._problem(offset, text)
+
+    # ------------------------------------------------------------------ context checks
+    def channel(self, channel_id: int) -> Any:
+        """The channel of an id: from the file, or from the intact summary; None if unknown."""
+        channel = self.channels.get(channel_id)
+        if channel is None:
+            channel = self.structure.summary_channels.get(channel_id)
+            if channel is not None:
+                self.channels[channel_id] = channel
+                schema = self.structure.summary_schemas.get(channel.schema_id)
+                if schema is not None and channel.schema_id not in self.schemas:
+                    self.schemas[channel.schema_id] = schema
+        return channel
+
+    def _shape(self, channel: Any) -> Any:
+        from .cdr_check import message_shape
+
+        if channel.id not in self._shapes:
+            schema = self.schemas.get(channel.schema_id)
+            shape = None
+            if schema is not None and schema.encoding == 'ros2msg':
+                try:
+                    shape = message_shape(schema.name, bytes(schema.data).decode('utf-8'))
+                except UnicodeDecodeError:
+                    shape = None
+            self._shapes[channel.id] = shape
+        return self._shapes[channel.id]
+
+    def _unverified_ok(self, record: tuple, offset: int, where: str,
+                       times: tuple[int, int] | None = None) -> bool:
+        """A message no CRC vouches for: its channel must be known, its log time inside its
+        chunk's range, its bytes a message of the channel's type (:mod:`.cdr_check`)."""
+        from .cdr_check import cdr_matches
+
+        channel_id, _, log_time, _, data = record
+        channel = self.channel(channel_id)
+        if channel is None:
+            return True  # reported once as an unknown channel by the reader
+        if times is not None and not times[0] <= log_time <= times[1]:
+            self._skip(offset, f'a message {where} whose log time is outside its chunk\'s '
+                               'time range skipped (damaged)')
+            return False
+        if channel.message_encoding == 'cdr' and not cdr_matches(data, self._shape(channel)):
+            self._skip(offset, f'a record {where} that is no {_schema_name(self, channel) or "CDR"}'
+                               f' message of {channel.topic[:80]} skipped (damaged)')
+            return False
+        return True
+
+    # ------------------------------------------------------------------ walk
     def records(self) -> Iterator[tuple[str, Any]]:
-        """Yield ('schema'|'channel'|'metadata', record) and ('message', tuple) in file order."""
+        """Yield ('schema'|'channel'|'metadata', record) and ('message', tuple) in file order;
+        messages only if they check out against their context."""
         from mcap.data_stream import ReadDataStream
         from mcap.records import Channel, Header, Metadata, Schema, Statistics
 
@@ -160,6 +352,7 @@ class _Scan:
             return
         pos = 8
         in_summary = False
+        chunked = self.structure.chunks > 0
         while True:
             head = f.read(9)
             if len(head) < 9:
@@ -193,7 +386,13 @@ class _Scan:
                 if op == _OP_HEADER:
                     self.header = Header.read(stream(body))
                 elif op == _OP_MESSAGE and not in_summary:
-                    yield 'message', self._message(body)
+                    record = self._message(body)
+                    if chunked:
+                        self._skip(start, 'a Message record outside the chunks of a chunked '
+                                          'file skipped (a damaged record, not a recorded '
+                                          'message)')
+                    elif self._unverified_ok(record, start, 'outside any chunk'):
+                        yield 'message', record
                 elif op == _OP_CHUNK and not in_summary:
                     yield from self._chunk(body, start, stream, Schema, Channel)
                 elif op == _OP_SCHEMA:
@@ -224,7 +423,7 @@ class _Scan:
                     return
             except Exception as exc:  # noqa: BLE001 - any parse failure means a damaged record
                 self._problem(start, f'damaged {name} record skipped ({type(exc).__name__}: '
-                              f'{exc})')
+                              f'{str(exc)[:200]})')
 
     @staticmethod
     def _message(body: bytes | memoryview) -> tuple[int, int, int, int, bytes]:
@@ -236,17 +435,25 @@ class _Scan:
     def _chunk(self, body: bytes, start: int, stream: Any, schema_cls: Any,
                channel_cls: Any) -> Iterator[tuple[str, Any]]:
         from mcap.records import Chunk
-        from mcap.stream_reader import get_chunk_data_stream
 
         chunk = Chunk.read(stream(body))
-        data_stream, size = get_chunk_data_stream(chunk, validate_crc=False)
-        data = data_stream.read(size) if size else b''
-        if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
-            self._problem(start, 'chunk CRC mismatch: damaged chunk skipped')
+        data = _decompress(chunk.compression, bytes(chunk.data), chunk.uncompressed_size)
+        if chunk.uncompressed_crc:
+            if zlib.crc32(data) != chunk.uncompressed_crc:
+                self._problem(start, 'chunk CRC mismatch: damaged chunk skipped')
+                return
+            verified = True
+        elif self.structure.chunks_with_crc:
+            self._problem(start, 'a chunk without a CRC in a file whose chunks carry CRCs '
+                                 'skipped (damaged: it cannot be verified)')
             return
+        else:
+            verified = False
+        times = (chunk.message_start_time, chunk.message_end_time)
         view = memoryview(data)
         i, n = 0, len(data)
-        while i < n:
+        records: list[tuple[str, Any]] = []
+        while i < n:  # the whole chunk parses before any of it is used
             if n - i < 9:
                 raise ValueError('chunk ends inside a record header')
             op, length = _REC_HEAD.unpack_from(view, i)
@@ -256,15 +463,45 @@ class _Scan:
             rec = view[i:i + length]
             i += length
             if op == _OP_MESSAGE:
-                yield 'message', self._message(rec)
+                records.append(('message', self._message(rec)))
             elif op == _OP_SCHEMA:
-                schema = schema_cls.read(stream(bytes(rec)))
-                self.schemas[schema.id] = schema
-                yield 'schema', schema
+                records.append(('schema', schema_cls.read(stream(bytes(rec)))))
             elif op == _OP_CHANNEL:
-                channel = channel_cls.read(stream(bytes(rec)))
-                self.channels[channel.id] = channel
-                yield 'channel', channel
+                records.append(('channel', channel_cls.read(stream(bytes(rec)))))
+        for kind, record in records:
+            if kind == 'schema':
+                self.schemas[record.id] = record
+            elif kind == 'channel':
+                self.channels[record.id] = record
+            elif not verified and not self._unverified_ok(record, start, 'in a chunk without '
+                                                          'a CRC', times):
+                continue
+            yield kind, record
+
+    def messages(self) -> Iterator[tuple[str, Any, tuple[int, int, int, int, bytes]]]:
+        """('message', channel, record) for every message that checks out and whose channel
+        is known (messages on an unknown channel are reported once per channel and skipped),
+        and (kind, record, ()) for the schema, channel and metadata records, in file order."""
+        for kind, record in self.records():
+            if kind != 'message':
+                yield kind, record, ()
+                continue
+            channel = self.channel(record[0])
+            if channel is None:
+                self.skipped += 1
+                if record[0] not in self._unknown_channels:
+                    self._unknown_channels.add(record[0])
+                    self._problem(-1, f'messages on unknown channel {record[0]} skipped')
+                continue
+            yield kind, channel, record
+
+    def error(self, messages_read: int) -> RecordingReadError | None:
+        """The problems found as one error (None for a good file)."""
+        if not self.problems:
+            return None
+        problems = self.problems + ([f'{self.more_problems} more problem(s)']
+                                    if self.more_problems else [])
+        return RecordingReadError(self.path, problems, self.problem_offset, messages_read)
 
 
 def _schema_name(scan: _Scan, channel: Any) -> str:
@@ -286,29 +523,18 @@ def read_messages(path: str | os.PathLike[str], topics: Iterable[str] | None = N
     wanted = None if topics is None else set(topics)
     scan = _Scan(path)
     count = 0
-    unknown_channels: set[int] = set()
     try:
-        for kind, record in scan.records():
-            if kind != 'message':
+        for kind, channel, record in scan.messages():
+            if kind != 'message' or (wanted is not None and channel.topic not in wanted):
                 continue
-            channel_id, sequence, log_time, publish_time, data = record
-            channel = scan.channels.get(channel_id)
-            if channel is None:
-                if channel_id not in unknown_channels:
-                    unknown_channels.add(channel_id)
-                    scan._problem(-1, f'messages on unknown channel {channel_id} skipped')
-                continue
-            if wanted is not None and channel.topic not in wanted:
-                continue
+            _, sequence, log_time, publish_time, data = record
             count += 1
             yield BagMessage(channel.topic, _schema_name(scan, channel), log_time, publish_time,
                              data, sequence, channel.message_encoding)
     finally:
         scan.close()
-    if scan.problems:
-        offset = scan.problem_offset if scan.problem_offset is not None and \
-            scan.problem_offset >= 0 else None
-        error = RecordingReadError(scan.path, scan.problems, offset, count)
+    error = scan.error(count)
+    if error is not None:
         if strict:
             raise error
         warnings.warn(str(error), RecordingReadWarning, stacklevel=2)
@@ -362,10 +588,10 @@ def summary(path: str | os.PathLike[str]) -> BagSummary:
     start: int | None = None
     end: int | None = None
     try:
-        for kind, record in scan.records():
+        for kind, channel, record in scan.messages():
             if kind == 'message':
-                channel_id, _, log_time, _, _ = record
-                counts[channel_id] = counts.get(channel_id, 0) + 1
+                log_time = record[2]
+                counts[channel.id] = counts.get(channel.id, 0) + 1
                 start = log_time if start is None else min(start, log_time)
                 end = log_time if end is None else max(end, log_time)
     finally:
@@ -382,77 +608,7 @@ def summary(path: str | os.PathLike[str]) -> BagSummary:
             channel.metadata.get('offered_qos_profiles', ''),
             channel.metadata.get('topic_type_hash', ''))
     metadata = {m.name: dict(m.metadata) for m in scan.metadata}
+    error = scan.error(sum(counts.values()))
     return BagSummary(scan.path, scan.header.profile, scan.header.library, sum(counts.values()),
                       start, end, topics, metadata, scan.complete and not scan.problems,
-                      tuple(scan.problems))
-
-
-def _custom_data(serialized: str) -> dict[str, str] | None:
-    try:
-        import yaml
-
-        data = yaml.safe_load(serialized)
-        custom = data.get('custom_data') if isinstance(data, dict) else None
-        return {str(k): str(v) for k, v in custom.items()} if isinstance(custom, dict) else None
-    except Exception:  # noqa: BLE001 - custom data is a nicety; a damaged record is ignored
-        return None
-
-
-def recover(src: str | os.PathLike[str], dst: str | os.PathLike[str], *,
-            overwrite: bool = False) -> int:
-    """Copy everything readable from ``src`` into a new, finished MCAP ``dst``.
-
-    Schemas, channels (with their metadata), messages (times and sequence numbers unchanged)
-    and metadata records are copied; the ``rosbag2`` metadata record is regenerated for what was
-    recovered (``custom_data`` is kept). Returns the number of messages recovered. Raises
-    :class:`RecordingReadError` if ``src`` is not an MCAP file and
-    :class:`~cvt_ros.recording.RecordingError` if ``dst`` cannot be written.
-    """
-    from .writer import BagWriter
-
-    src, dst = os.fspath(src), os.fspath(dst)
-    if os.path.abspath(src) == os.path.abspath(dst):
-        raise ValueError('recover() needs a destination different from the source')
-    scan = _Scan(src)
-    writer: BagWriter | None = None
-    channel_topics: dict[int, str] = {}
-    count = 0
-    try:
-        for kind, record in scan.records():
-            if writer is None:
-                if scan.header is None:
-                    break
-                writer = BagWriter(dst, overwrite=overwrite, flush_interval=None,
-                                   library=scan.header.library or 'cvt_ros')
-            if kind == 'channel':
-                schema = scan.schemas.get(record.schema_id)
-                writer._add_channel(
-                    record.topic, schema.name if schema else '',
-                    schema.encoding if schema else '', bytes(schema.data) if schema else b'',
-                    record.message_encoding, record.metadata)
-                channel_topics[record.id] = record.topic
-            elif kind == 'message':
-                channel_id, _, log_time, publish_time, data = record
-                topic = channel_topics.get(channel_id)
-                if topic is not None:
-                    writer._write_raw(topic, data, log_time, publish_time)
-                    count += 1
-            elif kind == 'metadata':
-                if record.name == 'rosbag2':
-                    custom = _custom_data(record.metadata.get('serialized_metadata', ''))
-                    if custom:
-                        writer._custom_data = custom
-                else:
-                    writer._add_metadata_raw(record.name, record.metadata)
-        if writer is None and scan.header is not None:
-            writer = BagWriter(dst, overwrite=overwrite, flush_interval=None,
-                               library=scan.header.library or 'cvt_ros')
-        if writer is None:
-            raise RecordingReadError(scan.path, scan.problems or ['no MCAP header'],
-                                     scan.problem_offset)
-        writer.finish()
-    finally:
-        scan.close()
-        if writer is not None and not writer.closed:
-            writer.finish()
-    return count
+                      tuple(error.problems) if error is not None else ())

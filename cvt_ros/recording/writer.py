@@ -394,12 +394,16 @@ class BagWriter:
             self._topics[topic] = entry
             return channel_id
 
-    def _write_raw(self, topic: str, data: bytes, log_time_ns: int, publish_time_ns: int) -> None:
-        """Queue without the monotonic check (recovery copies times as found)."""
+    def _write_raw(self, topic: str, data: bytes, log_time_ns: int, publish_time_ns: int,
+                   sequence: int | None = None) -> None:
+        """Queue without the monotonic check (recovery copies times and sequence numbers as
+        found)."""
         with self._lock:
             if self._state == _OPEN and not self._finish_requested:
-                self._enqueue((_MSG, self._topics[topic], log_time_ns, publish_time_ns, data),
-                              len(data) + _RECORD_OVERHEAD)
+                command = (_MSG, self._topics[topic], log_time_ns, publish_time_ns, data)
+                if sequence is not None:
+                    command += (int(sequence) & 0xFFFFFFFF,)
+                self._enqueue(command, len(data) + _RECORD_OVERHEAD)
 
     def _add_metadata_raw(self, name: str, data: Mapping[str, str]) -> None:
         with self._lock:
@@ -445,7 +449,7 @@ class BagWriter:
             command = queue.popleft()
             kind = command[0]
             if kind == _MSG:
-                _, entry, log, publish, data = command
+                _, entry, log, publish, data, *sequence = command
                 entry.count += 1
                 self._message_count += 1
                 if self._start_ns is None or log < self._start_ns:
@@ -453,7 +457,7 @@ class BagWriter:
                 if log > self._end_ns:
                     self._end_ns = log
                 mcap.add_message(entry.channel_id, log, data, publish,
-                                 sequence=entry.count & 0xFFFFFFFF)
+                                 sequence=sequence[0] if sequence else entry.count & 0xFFFFFFFF)
             elif kind == _SCHEMA:
                 _, schema_id, name, encoding, data = command
                 if mcap.register_schema(name, encoding, data) != schema_id:
