@@ -47,15 +47,18 @@ class ParameterSpec:
     max_length: int = 4096      # strings: longest accepted
     high_name: str = ''         # names an upper bound that other parameters set
 
-    def range_text(self):
-        """The accepted values as a person reads them: ``[0.001, 10]``, ``0 or [1e-09, 1000]``."""
+    def range_text(self, high=None):
+        """The accepted values as a person reads them: ``[0.001, 10]``, ``0 or [1e-09, 1000]``;
+        ``high``: the value of a ``high_name`` bound where it is known (the Grashof bound of a
+        geometry: ``[0, 0.1)``)."""
         if self.choices:
             return f"one of {list(self.choices)}"
         if isinstance(self.default, str):
             return f"text of at most {self.max_length} characters"
         low = self.min_positive or self.low
-        high = self.high_name or _bound(self.high)
-        text = (f"{'(' if self.low_open else '['}{_bound(low)}, {high}"
+        high = (number_text(high) if high is not None
+                else self.high_name or number_text(self.high))
+        text = (f"{'(' if self.low_open else '['}{number_text(low)}, {high}"
                 f"{')' if math.isinf(self.high) else ']'}")
         if self.min_positive:
             text = f"0 or {text}"
@@ -111,13 +114,17 @@ class ParameterSpec:
             raise ParameterError(self.name, f"{number!r} is not a finite number [{self.unit}]; "
                                             f"accepted: {self.range_text()}")
         if not self.contains(number):
-            raise ParameterError(self.name, f"{number:.6g}{unit} is outside "
+            raise ParameterError(self.name, f"{number_text(number)}{unit} is outside "
                                             f"{self.range_text()}")
         return number
 
 
-def _bound(x):
-    return 'inf' if x == math.inf else '-inf' if x == -math.inf else f"{x:g}"
+def number_text(x):
+    """A number as short as reads back exactly: ``0.1``, ``1e-09``, ``0.10000000000000002``."""
+    if math.isinf(x):
+        return 'inf' if x > 0 else '-inf'
+    short = f"{x:g}"
+    return short if float(short) == x else repr(float(x))
 
 
 def _short(value, limit=60):

@@ -380,8 +380,8 @@ def test_bad_parameter_sets_are_refused_with_the_reason(device):
     joints = device.joints
     cases = {
         'linkage.crank_length': (0.15, 'Grashof'),
-        'inertia.motor': (-1.0, 'out of range'),
-        'inertia.output': (0.0, 'out of range'),
+        'inertia.motor': (-1.0, '-1 kg*m^2 is outside [1e-06, 10000]'),
+        'inertia.output': (0.0, '0 kg*m^2 is outside [1e-06, 10000]'),
         'shaft.stiffness': (-math.inf, 'not a finite number'),
         'linkage.rocker_length': (0.03, 'Grashof'),
         'time_mode': ('warp', "'warp' is not one of"),
@@ -403,7 +403,8 @@ def test_bad_parameter_sets_are_refused_with_the_reason(device):
     wrong_type = probe.set_raw_parameter(NODE, ParameterMsg(
         name='inertia.motor', value=ParameterValue(type=ParameterType.PARAMETER_STRING,
                                                    string_value='heavy')))
-    assert not wrong_type.successful and 'Wrong parameter type' in wrong_type.reason
+    assert not wrong_type.successful and "expected a number [kg*m^2], got 'heavy'" in \
+        wrong_type.reason
     # nothing changed, and the samples keep coming
     assert probe.get_parameters(NODE, ['linkage.crank_length', 'inertia.motor']) == {
         'linkage.crank_length': 0.04, 'inertia.motor': 0.08}

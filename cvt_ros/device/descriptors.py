@@ -1,16 +1,78 @@
-"""ParameterSpec (``cvt_ros.parameters``) → ROS parameter descriptor and value type.
+"""The node's parameters as ROS sees them: the values it starts with, the descriptor of each
+(``ParameterSpec`` of ``cvt_ros.parameters`` → ``rcl_interfaces/ParameterDescriptor``), what
+``ros2 param set`` / ``ros2 param load`` send turned into the declared type, and the table of
+docs/node.md (``cvt-sim params --node --markdown``). No rclpy here: the node (``node.py``) wires
+these into its parameter callbacks.
 
-A floating-point range is given wherever the spec has a bound; an infinite side becomes ±DBL_MAX
-(rclpy's range check cannot hold inf). A parameter that may be +inf (the rigid shaft) has no
-range here and is checked in the node's on-set callback, as are open bounds (> 0) and the gap
-below a smallest positive value (denormal inertias): rclpy's ranges are closed.
+Ranges: a floating-point range is given where both bounds are finite; the crank length's upper
+bound is the Grashof bound of the geometry the node has now (``node.py`` re-describes it when the
+geometry changes). ROS ranges are closed: open bounds (``real_time_factor > 0``, ``a < bound``)
+and the gap below a smallest positive value (denormal inertias) are checked by the node's on-set
+callback, with the exact range in ``additional_constraints``. ``shaft.stiffness`` may be ``.inf``
+and so has no range.
 """
+import difflib
 import math
-import sys
+import re
 
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, ParameterType
 
-DBL_MAX = sys.float_info.max
+from .. import parameters as params_mod
+from ..parameters import ParameterError
+from ..physics.linkage import GrashofError, grashof_bound
+from ..scene import SceneError, read_scene
+
+DEFAULT_SCENE = 'conveyor'
+# rk4 is the node's default solver: fixed sub-steps with events located inside the step, so every
+# control period costs the same (dopri5's adaptive steps make the cost per period vary).
+REALTIME_SOLVER = 'rk4'
+# parameters rclpy or other layers declare themselves: allowed in params files and -p
+FOREIGN_PARAMETERS = ('use_sim_time', 'start_type_description_service')
+
+# A number as Python's str() writes it (and so ``ros2 param dump`` → ``load``, ros2/rclpy#1672)
+# that YAML 1.1 reads as a string: no dot (``2e-06``), or Python's ``inf``/``nan``.
+_NUMBER = re.compile(r'[-+]?((\d+\.?\d*|\.\d+)([eE][-+]?\d+)?|inf|infinity|nan)', re.IGNORECASE)
+
+
+def node_values(base_scene=DEFAULT_SCENE, overrides=None):
+    """The validated values the node starts with: ``base_scene`` (name or path; None = the
+    built-in defaults, as ``cvt-sim run``), ``solver.method`` rk4 unless the scene sets it, then
+    ``overrides`` (name → value: the params file and ``-p``). An unknown name (a typo must not run
+    the wrong experiment) or an invalid scene raises SceneError with the reason."""
+    raw = {} if base_scene is None else read_scene(base_scene)
+    raw.setdefault('solver.method', REALTIME_SOLVER)
+    for name, value in sorted((overrides or {}).items()):
+        if name in params_mod.SPECS:
+            raw[name] = value
+        elif name not in FOREIGN_PARAMETERS and not name.startswith('qos_overrides.'):
+            raise SceneError(f"unknown parameter {name}{closest_name(name)}; "
+                             f"`cvt-sim params --node` lists them")
+    try:
+        return params_mod.validate(raw)
+    except (ParameterError, GrashofError) as exc:
+        where = f" (base scene {base_scene})" if base_scene else ''
+        raise SceneError(f"invalid scene parameters{where}: {exc}") from None
+
+
+def closest_name(name):
+    """`` (did you mean load.torque?)`` for a name the node does not have, or ``''``."""
+    close = difflib.get_close_matches(name, params_mod.SPECS, n=1)
+    return f" (did you mean {close[0]}?)" if close else ''
+
+
+def upper_bound(spec, values):
+    """The upper bound that applies with ``values``: the crank length's is the Grashof bound of
+    their geometry (exclusive), every other parameter's its own."""
+    if spec.name == 'linkage.crank_length':
+        return grashof_bound(values['linkage.rocker_length'], values['linkage.coupler_length'],
+                             values['linkage.pivot_distance'])
+    return spec.high
+
+
+def range_text(spec, values):
+    """The accepted values with ``values`` in force: ``[0, 0.1)``, ``(0, 1000]``, ``0 or ...``."""
+    bound = upper_bound(spec, values)
+    return spec.range_text(bound if spec.high_name else None)
 
 
 def ros_value(spec, value):
@@ -25,30 +87,84 @@ def ros_value(spec, value):
     return str(value)
 
 
-def describe(spec):
-    """The ParameterDescriptor of a parameter: description, unit, range or choices."""
-    d = ParameterDescriptor(name=spec.name, description=spec.description)
+def coerce(spec, value):
+    """A value as ``ros2 param set`` / ``load`` send it, in the type ``spec`` is declared with
+    where the meaning is plain: an integer for a double (``load.torque 10``), a number YAML 1.1
+    read as text (``2e-06``, ``inf``: what ``ros2 param dump`` writes for such values), a whole
+    double for an integer (``steps_per_command 10.0``). Anything else is returned as it is, for
+    rclpy's type check and the node's range checks to refuse with the reason."""
     kind = type(spec.default)
+    if kind is float:
+        if isinstance(value, int) and not isinstance(value, bool):
+            return float(value)
+        if isinstance(value, str) and _NUMBER.fullmatch(value.strip()):
+            return float(value)
+    elif kind is int and isinstance(value, float) and value.is_integer():
+        return int(value)
+    return value
+
+
+def describe(spec, values):
+    """The ParameterDescriptor of a parameter: description, unit and range (or choices) as they
+    apply with ``values`` (the Grashof bound of their geometry for the crank length)."""
+    kind = type(spec.default)
+    d = ParameterDescriptor(name=spec.name, description=spec.description, type=_TYPES[kind])
     if spec.choices:
         d.additional_constraints = f"one of: {', '.join(str(c) for c in spec.choices)}"
         if kind is int:
-            values = sorted(spec.choices)
-            steps = {b - a for a, b in zip(values, values[1:], strict=False)}
-            d.integer_range = [IntegerRange(from_value=values[0], to_value=values[-1],
+            choices = sorted(spec.choices)
+            steps = {b - a for a, b in zip(choices, choices[1:], strict=False)}
+            d.integer_range = [IntegerRange(from_value=choices[0], to_value=choices[-1],
                                             step=steps.pop() if len(steps) == 1 else 0)]
-    elif kind is str:
-        d.additional_constraints = 'string'
+        return d
+    if kind is str:
+        d.additional_constraints = spec.range_text()
+        return d
+    low, high = spec.low, upper_bound(spec, values)
+    d.additional_constraints = f"unit: {spec.unit}; range: {range_text(spec, values)}"
+    if spec.high_name:
+        d.additional_constraints += f" ({spec.high_name} of the present geometry)"
+    if not (math.isfinite(low) and math.isfinite(high)) or spec.allow_inf:
+        return d   # ROS ranges cannot hold inf: the range is in additional_constraints
+    if kind is int:
+        d.integer_range = [IntegerRange(from_value=int(low), to_value=int(high), step=1)]
     else:
-        d.additional_constraints = f"unit: {spec.unit}; range: {spec.range_text()}"
-        if kind is int:
-            d.integer_range = [IntegerRange(
-                from_value=int(spec.low) if math.isfinite(spec.low) else -2**63,
-                to_value=int(spec.high) if math.isfinite(spec.high) else 2**63 - 1, step=1)]
-        elif not spec.allow_inf and (math.isfinite(spec.low) or math.isfinite(spec.high)):
-            d.floating_point_range = [FloatingPointRange(
-                from_value=spec.low if math.isfinite(spec.low) else -DBL_MAX,
-                to_value=spec.high if math.isfinite(spec.high) else DBL_MAX, step=0.0)]
+        d.floating_point_range = [FloatingPointRange(from_value=low, to_value=high, step=0.0)]
     return d
 
 
-__all__ = ['describe', 'ros_value']
+_TYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
+          float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING}
+
+
+def parameter_table(values):
+    """docs/node.md's parameter table (Markdown) for ``values``: name, value, unit, accepted
+    values (the Grashof bound of their geometry for the crank length), meaning."""
+    rows = ['| parameter | default | unit | range / choices | meaning |',
+            '|---|---|---|---|---|']
+    for name, spec in params_mod.SPECS.items():
+        if spec.choices:
+            accepted = ' | '.join(_yaml_text(c) for c in spec.choices)
+        elif isinstance(spec.default, str):
+            accepted = spec.range_text()
+        else:
+            accepted = range_text(spec, values)
+        cells = (f"`{name}`", _yaml_text(values[name]), spec.unit, accepted, spec.description)
+        rows.append('| ' + ' | '.join(c.replace('|', '\\|') for c in cells) + ' |')
+    return '\n'.join(rows) + '\n'
+
+
+def _yaml_text(value):
+    """A value as it is written in a params file: ``true``, ``''``, ``.inf``, ``1e-08``."""
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
+    if isinstance(value, str):
+        return value or "''"
+    if isinstance(value, float) and math.isinf(value):
+        return '.inf' if value > 0 else '-.inf'
+    return params_mod.number_text(value) if isinstance(value, float) else str(value)
+
+
+__all__ = ['DEFAULT_SCENE', 'REALTIME_SOLVER', 'FOREIGN_PARAMETERS', 'node_values',
+           'closest_name', 'upper_bound', 'range_text', 'ros_value', 'coerce', 'describe',
+           'parameter_table']

@@ -14,7 +14,6 @@ the health report ``diagnostics.py``; the full interface is in docs/node.md.
 Threads: the executor runs the callbacks, which only check and queue; the loop thread owns the
 Device and publishes.
 """
-import difflib
 import gc
 import math
 import threading
@@ -23,7 +22,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import CallbackGroup
 from rclpy.clock import Clock, ClockType
-from rclpy.exceptions import InvalidHandle
+from rclpy.exceptions import InvalidHandle, ParameterNotDeclaredException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -35,21 +34,25 @@ from .. import interface
 from .. import parameters as params_mod
 from ..parameters import ParameterError
 from ..physics.linkage import GrashofError
-from ..scene import NODE_NAME, SceneError, read_scene
+from ..scene import NODE_NAME
 from ..solver.output import COL
 from .core import NODE_NAMES, PERIOD_NAMES, CommandError, Device
-from .descriptors import describe, ros_value
+from .descriptors import (
+    DEFAULT_SCENE,
+    REALTIME_SOLVER,
+    closest_name,
+    coerce,
+    describe,
+    node_values,
+    ros_value,
+)
 from .diagnostics import Reporter
 from .loop import REALTIME_POLICY, RunLoop
 
-DEFAULT_SCENE = 'conveyor'
-# rk4 is the node's default solver: fixed sub-steps with events located inside the step, so every
-# control period costs the same (dopri5's adaptive steps make the cost per period vary).
-REALTIME_SOLVER = 'rk4'
 TAKE_LIMIT = 1000              # command messages the loop takes per subscription and step
-# parameters rclpy or other layers declare themselves: not warned about as unknown overrides
-FOREIGN_PARAMETERS = ('use_sim_time', 'start_type_description_service')
 
+CRANK = 'linkage.crank_length'
+GEOMETRY = {'linkage.rocker_length', 'linkage.coupler_length', 'linkage.pivot_distance'}
 JOINTS = interface.DEVICE_JOINTS   # J1..J4 (crank ... output_shaft) and the actuator crank_length
 _A = COL['crank_length']
 # one gather per sample: position φ1..φ4, a; velocity ω1..ω4, (ȧ); effort (4 torques), (NaN)
@@ -94,8 +97,9 @@ class CvtSimNode(Node):
         values = self._scene_values(base_scene)
         self._scene_name = '' if base_scene is None else str(base_scene)  # for recordings
         for name, spec in params_mod.SPECS.items():
-            self.declare_parameter(name, ros_value(spec, values[name]), describe(spec),
+            self.declare_parameter(name, ros_value(spec, values[name]), describe(spec, values),
                                    ignore_override=True)
+        self._refusal = None   # a refused set's reason, from the pre-set to the on-set callback
         self.add_pre_set_parameters_callback(self.coerce_parameters_callback)
         self.add_on_set_parameters_callback(self.check_parameters_callback)
         self.add_post_set_parameters_callback(self.apply_parameters_callback)
@@ -184,26 +188,12 @@ class CvtSimNode(Node):
 
     # ------------------------------------------------------------------ scene parameters
     def _scene_values(self, base_scene):
-        """Base scene + parameter overrides (params file, -p), validated."""
-        raw = {} if base_scene is None else read_scene(base_scene)
-        raw.setdefault('solver.method', REALTIME_SOLVER)
+        """Base scene + parameter overrides (params file, -p), validated (SceneError)."""
         # rclpy keeps the overrides of this node (params files and -p) here; reading them lets
         # the node coerce integers to doubles (`torque: 10`) before declaring with that type.
         overrides = {name: p.value for name, p in getattr(self, '_parameter_overrides',
                                                            {}).items()}
-        for name, value in sorted(overrides.items()):
-            if name in params_mod.SPECS:
-                raw[name] = value
-            elif name not in FOREIGN_PARAMETERS and not name.startswith('qos_overrides.'):
-                # a typo must not run the wrong experiment: refused, as offline
-                close = difflib.get_close_matches(name, params_mod.SPECS, n=1)
-                hint = f" (did you mean {close[0]}?)" if close else ''
-                raise SceneError(f"unknown parameter {name}{hint}; `cvt-sim params` lists them")
-        try:
-            return params_mod.validate(raw)
-        except (ParameterError, GrashofError) as exc:
-            where = f" (base scene {base_scene})" if base_scene else ''
-            raise SceneError(f"invalid scene parameters{where}: {exc}") from None
+        return node_values(base_scene, overrides)
 
     @staticmethod
     def _warm_up(values):
@@ -213,14 +203,29 @@ class CvtSimNode(Node):
         device.sim.energy_balance()
 
     def coerce_parameters_callback(self, parameters):
-        """`ros2 param set ... load.torque 10` sends an integer: make it the double it means."""
+        """Before rclpy's checks: what `ros2 param set/load` sends, in the declared type (an
+        integer for a double, `2e-06` and `inf` that YAML 1.1 reads as text: what `ros2 param
+        dump` writes for such values), then checked here, so that a refusal gives the node's
+        reason (the Grashof bound, an open bound, the unit) rather than rclpy's range or type
+        message: a pre-set callback cannot refuse, so the refused parameters are replaced by
+        their present values and check_parameters_callback refuses with the reason. An unknown
+        name is refused with the closest one."""
+        self._refusal = None
         out = []
         for p in parameters:
             spec = params_mod.SPECS.get(p.name)
-            if (spec is not None and type(spec.default) is float
-                    and p.type_ == Parameter.Type.INTEGER):
-                p = Parameter(p.name, Parameter.Type.DOUBLE, float(p.value))
-            out.append(p)
+            if spec is None:
+                if not self.has_parameter(p.name):   # rclpy's own text names no parameter
+                    raise ParameterNotDeclaredException(
+                        f"{p.name}{closest_name(p.name)}; `cvt-sim params --node` lists them")
+                out.append(p)
+                continue
+            value = coerce(spec, p.value)
+            out.append(p if value is p.value else Parameter(p.name, value=value))
+        result = self.check_parameters_callback(out)
+        if not result.successful:
+            self._refusal = result.reason
+            out = [self.get_parameter(p.name) if p.name in params_mod.SPECS else p for p in out]
         return out
 
     def _present_crank_length(self):
@@ -229,6 +234,9 @@ class CvtSimNode(Node):
 
     def check_parameters_callback(self, parameters):
         """Refuse (with the reason) a change the physics cannot take; change nothing here."""
+        refusal, self._refusal = self._refusal, None   # found by coerce_parameters_callback
+        if refusal:
+            return SetParametersResult(successful=False, reason=refusal)
         changes = {p.name: p.value for p in parameters if p.name in params_mod.SPECS}
         if not changes:
             return SetParametersResult(successful=True)
@@ -246,6 +254,7 @@ class CvtSimNode(Node):
             return
         device, loop = self.device, self.loop
         new = params_mod.validate(dict(device.values, **changes))
+        recording = device.values['record.path']
         physics = {k: new[k] for k in changes if k in PERIOD_NAMES}   # at a period boundary
         node = {k: new[k] for k in changes if k in NODE_NAMES and k not in PERIOD_NAMES}
         # the node's settings take effect now; the physics at the loop's next step
@@ -256,6 +265,8 @@ class CvtSimNode(Node):
             if 'load.torque' in physics:
                 self._load_command = new['load.torque']
             loop.request(('params', physics))
+        if GEOMETRY & set(changes):   # the crank's range: the Grashof bound of the new geometry
+            self.set_descriptor(CRANK, describe(params_mod.SPECS[CRANK], new))
         if 'publish_rate' in node:
             device.dt = 1.0 / new['publish_rate']
         if 'steps_per_command' in node:
@@ -270,7 +281,7 @@ class CvtSimNode(Node):
             self._joint_names = [new['joint_prefix'] + j for j in JOINTS]
             self._actuator_joint = self._joint_names[-1]
             self._encoder = interface.JointStateEncoder(self._joint_names)
-        if 'record.path' in node:
+        if 'record.path' in node and new['record.path'] != recording:   # a reload: not again
             self._close_recorder()
             if new['record.path']:
                 self._open_recorder(new['record.path'])
