@@ -13,7 +13,7 @@ from ..physics.linkage import GrashofError
 from ..recording.errors import RecordingError
 from ..scene import SceneError, available_scenes
 from ..solver.simulator import SimulationError
-from . import demo, run
+from . import demo, run, sweep
 from .arguments import Parser
 
 DESCRIPTION = """\
@@ -52,6 +52,7 @@ def build_parser():
     from ..scenario.commands import add_parser as add_scenario_parser
     add_scenario_parser(sub)   # cvt-sim scenario run|list (controller tests)
 
+    sweep.add_parser(sub)   # cvt-sim sweep CAMPAIGN --out DIR (campaigns on Dask)
     demo.add_parser(sub)
 
     node = sub.add_parser('node', add_help=False,
