@@ -18,79 +18,34 @@ file is one :class:`CampaignError` naming the file, the key, the value and the l
 expanded and checked as a whole (the Grashof bound, a scenario's schedules) by
 :mod:`cvt_ros.sweep.cases`.
 """
-import difflib
-import math
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from .. import parameters
-from ..control.speed_pi import SpeedPIGains
 from ..scenario.checks import number
 from ..scene import _yaml_number as yaml_number  # '1e-3' is a number, as ROS reads it
-from ..yaml_file import InputFileError, read_yaml
+from ..yaml_file import read_yaml
+from .errors import CampaignError
 from .metrics import SCENARIO_METRICS, SCENE_METRICS, default_metrics
+from .variables import (
+    Variable,
+    check_name,
+    check_value,
+    choice,
+    parse_cases,
+    parse_variable,
+    rounded,
+    shown,
+    unknown_key,
+)
 
 KEYS = ('name', 'description', 'scene', 'scenario', 'overrides', 'controller', 'duration',
         'sample_dt', 'window', 'vary', 'cases', 'sampling', 'samples', 'seed', 'metrics',
         'time_budget', 'record', 'summary')
 SAMPLINGS = ('grid', 'random', 'latin_hypercube')
 RECORD_FORMATS = ('none', 'csv', 'mcap')
-SCALES = ('linear', 'log')
 MAX_DURATION = 86400.0          # s per case
-MAX_AXIS = 1_000_000            # values on one grid axis
-HARD_MAX_CASES = 10_000_000     # cases in one campaign, --yes or not (the table lives in memory)
+HARD_MAX_CASES = 1_000_000      # cases in one campaign, --yes or not (its tasks live in memory)
 DEFAULT_TIME_BUDGET = 600.0     # s of wall time per case
-SIGNIFICANT = 12                # digits kept of a generated value (0.060000000000000005 → 0.06)
-SCENE_NAMES = tuple(s.name for s in parameters.PHYSICS_PARAMETERS)
-GAIN_NAMES = tuple(f.name for f in fields(SpeedPIGains))
-
-
-class CampaignError(InputFileError):
-    """A campaign that cannot be run; the message names the file, the key, the value and why."""
-
-
-@dataclass(frozen=True)
-class Variable:
-    """One varied parameter: a list of ``values``, or a ``range`` [low, high] (``num`` points on
-    a grid, linear or log ``scale``; drawn uniformly in random and Latin hypercube sampling)."""
-    name: str
-    values: tuple = ()
-    low: float = math.nan
-    high: float = math.nan
-    num: int = 0
-    scale: str = 'linear'
-
-    @property
-    def target(self):
-        """'controller' (a reference-controller setting) or 'scene' (a scene parameter)."""
-        return 'controller' if self.name.startswith('controller.') else 'scene'
-
-    @property
-    def key(self):
-        """The name inside its target: ``kp`` for ``controller.kp``."""
-        return self.name.partition('.')[2] if self.target == 'controller' else self.name
-
-    @property
-    def numeric(self):
-        return not self.values or all(_is_number(v) for v in self.values)
-
-    def grid(self):
-        """The axis of a grid: the list, or ``num`` points from low to high."""
-        if self.values:
-            return list(self.values)
-        if self.num == 1:
-            return [self.low]
-        return [self.at(k / (self.num - 1)) for k in range(self.num)]
-
-    def at(self, u):
-        """The value at fraction u ∈ [0, 1] of the range (or of the list)."""
-        if self.values:
-            return self.values[min(int(u * len(self.values)), len(self.values) - 1)]
-        if self.scale == 'log':
-            x = math.exp(math.log(self.low) + u * (math.log(self.high) - math.log(self.low)))
-        else:
-            x = self.low + u * (self.high - self.low)
-        return rounded(min(max(x, self.low), self.high))
 
 
 @dataclass(frozen=True, eq=False)
@@ -134,30 +89,6 @@ class Campaign:
         return count
 
 
-def rounded(x):
-    """A generated number with SIGNIFICANT digits: the same text in the table on every machine."""
-    return float(f"{x:.{SIGNIFICANT}g}")
-
-
-def _shown(value):
-    """A value for a message: numbers as written (inf, 1e-05), anything else quoted and cut."""
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
-        return f"{value!r}"
-    text = repr(value)
-    return text if len(text) <= 60 else f"{text[:60]}…"
-
-
-def _is_number(v):
-    return isinstance(v, (int, float)) and not isinstance(v, bool)
-
-
-def _unknown(where, key, allowed):
-    close = difflib.get_close_matches(str(key), allowed, n=1)
-    hint = f" (did you mean {close[0]}?)" if close else ''
-    return CampaignError(f"{where}: unknown key {str(key)[:80]!r}{hint}; allowed: "
-                         f"{', '.join(allowed)}")
-
-
 def _number(doc, key, where, low, high, default=None, integer=False, open_low=False):
     value = doc.get(key, default)
     if value is None:
@@ -166,155 +97,13 @@ def _number(doc, key, where, low, high, default=None, integer=False, open_low=Fa
                   error=CampaignError)
 
 
-def _choice(doc, key, where, choices, default):
-    value = doc.get(key, default)
-    if value not in choices:
-        raise CampaignError(f"{where}: {key}: {_shown(value)} is not one of "
-                            f"{', '.join(choices)}")
-    return value
-
-
-def check_value(name, value, where):
-    """One value of a varied or fixed parameter, checked by its spec; the coerced value."""
-    if name.startswith('controller.'):
-        setting = name.partition('.')[2]
-        if not _is_number(value) or not math.isfinite(value):
-            raise CampaignError(f"{where}: {name}: {_shown(value)} is not a finite number")
-        try:   # the setting's own bounds (≥ 0, > 0); crank_min < crank_max is checked per case
-            SpeedPIGains(**{setting: value}).check()
-        except ValueError as exc:
-            if str(exc).startswith(f"{setting}:"):
-                raise CampaignError(f"{where}: controller.{exc}") from None
-        return float(value)
-    try:
-        return parameters.SPECS[name].check(value)
-    except parameters.ParameterError as exc:
-        raise CampaignError(f"{where}: {exc}") from None
-
-
-def check_name(name, where, kind, controller):
-    """A variable's name: a physics parameter, or controller.<setting> of the reference
-    controller in a scenario campaign."""
-    name = str(name)
-    if name.startswith('controller.'):
-        setting = name.partition('.')[2]
-        if kind != 'scenario' or controller is not None:
-            raise CampaignError(f"{where}: {name}: controller settings vary the reference "
-                                f"controller of a scenario campaign (scenario: …, no "
-                                f"controller: key)")
-        if setting not in GAIN_NAMES:
-            close = difflib.get_close_matches(setting, GAIN_NAMES, n=1)
-            hint = f"did you mean controller.{close[0]}? " if close else ''
-            raise CampaignError(f"{where}: {name}: unknown controller setting; {hint}allowed: "
-                                f"{', '.join('controller.' + g for g in GAIN_NAMES)}")
-        return name
-    if name in parameters.SPECS and name not in SCENE_NAMES:
-        raise CampaignError(f"{where}: {name}: a node parameter; it changes nothing in an "
-                            f"offline case (vary physics, model or solver parameters)")
-    if name not in SCENE_NAMES:
-        close = difflib.get_close_matches(name, SCENE_NAMES + tuple(
-            'controller.' + g for g in GAIN_NAMES), n=1)
-        hint = f"did you mean {close[0]}? " if close else ''
-        raise CampaignError(f"{where}: {name[:80]!r}: unknown parameter; {hint}(`cvt-sim params` "
-                            f"lists the scene parameters)")
-    return name
-
-
-def _variable(name, body, where, kind, controller, sampling):
-    name = check_name(name, where, kind, controller)
-    w = f"{where}: {name}"
-    if isinstance(body, list):
-        body = {'values': body}
-    if not isinstance(body, dict):
-        raise CampaignError(f"{w}: expected a list of values or a map {{range: [low, high], "
-                            f"num: N}} / {{values: [...]}}, got {_shown(body)}")
-    for key in body:
-        if key not in ('values', 'range', 'num', 'scale'):
-            raise _unknown(w, key, ('values', 'range', 'num', 'scale'))
-    if ('values' in body) == ('range' in body):
-        raise CampaignError(f"{w}: give either values: [...] or range: [low, high]")
-    if 'values' in body:
-        values = body['values']
-        if not isinstance(values, list):
-            raise CampaignError(f"{w}: values: expected a list, got {_shown(values)}")
-        if not values:
-            raise CampaignError(f"{w}: values: empty list (no case would run)")
-        if len(values) > MAX_AXIS:
-            raise CampaignError(f"{w}: values: {len(values)} values, more than {MAX_AXIS}")
-        for k in ('num', 'scale'):
-            if k in body:
-                raise CampaignError(f"{w}: {k}: applies to a range, not to values")
-        checked = tuple(check_value(name, v, f"{w}: values[{i}]")
-                        for i, v in enumerate(values))
-        if len(set(map(repr, checked))) < len(checked):
-            raise CampaignError(f"{w}: values: {list(checked)} repeats a value (the same case "
-                                f"twice)")
-        return Variable(name, values=checked)
-    bounds = body['range']
-    if not (isinstance(bounds, list) and len(bounds) == 2):
-        raise CampaignError(f"{w}: range: expected [low, high], got {_shown(bounds)}")
-    for i, b in enumerate(bounds):
-        if not _is_number(b) or not math.isfinite(b):
-            raise CampaignError(f"{w}: range[{i}]: {_shown(b)} is not a finite number")
-    spec = parameters.SPECS.get(name)
-    if spec is not None and (spec.choices or isinstance(spec.default, str)):
-        raise CampaignError(f"{w}: range: {name} takes one of {list(spec.choices)}: list the "
-                            f"values instead")
-    low, high = (check_value(name, b, f"{w}: range") for b in bounds)
-    if not high > low:
-        raise CampaignError(f"{w}: range: [{low:g}, {high:g}] is empty (low must be below "
-                            f"high; one value: values: [{low:g}])")
-    scale = _choice(body, 'scale', w, SCALES, 'linear')
-    if scale == 'log' and not low > 0:
-        raise CampaignError(f"{w}: scale: log needs a range above 0, got [{low:g}, {high:g}]")
-    if sampling == 'grid':
-        num = _number(body, 'num', w, 2, MAX_AXIS, None, integer=True)
-    elif 'num' in body:
-        raise CampaignError(f"{w}: num: {sampling} sampling draws samples: values from the "
-                            f"range; num applies to a grid")
-    else:
-        num = 0
-    return Variable(name, low=float(low), high=float(high), num=num, scale=scale)
-
-
-def _explicit_cases(body, where, kind, controller):
-    if not isinstance(body, list) or not body:
-        raise CampaignError(f"{where}: cases: expected a non-empty list of maps "
-                            f"(parameter: value)")
-    if len(body) > HARD_MAX_CASES:
-        raise CampaignError(f"{where}: cases: {len(body)} cases, more than {HARD_MAX_CASES}")
-    cases = []
-    for i, case in enumerate(body):
-        w = f"{where}: cases[{i}]"
-        if not isinstance(case, dict) or not case:
-            raise CampaignError(f"{w}: expected a map of parameter: value, got "
-                                f"{_shown(case)}")
-        checked = {}
-        for name, value in case.items():
-            name = check_name(name, w, kind, controller)
-            checked[name] = check_value(name, value, w)
-        cases.append(checked)
-    keys = set(cases[0])
-    for i, case in enumerate(cases):
-        if set(case) != keys:
-            raise CampaignError(f"{where}: cases[{i}]: sets {sorted(case)}, cases[0] sets "
-                                f"{sorted(keys)}: every case sets the same parameters")
-    seen = {}
-    for i, case in enumerate(cases):
-        key = repr(sorted(case.items()))
-        if key in seen:
-            raise CampaignError(f"{where}: cases[{i}]: the same case as cases[{seen[key]}]")
-        seen[key] = i
-    return tuple(cases)
-
-
 def _window(value, where):
     if value == 'steady':
         return 'steady'
     if isinstance(value, dict) and set(value) == {'start'}:
         return _number(value, 'start', f"{where}: window", 0.0, MAX_DURATION)
     raise CampaignError(f"{where}: window: expected 'steady' (the detected steady state) or "
-                        f"{{start: T}} (whole crank cycles from T s on), got {_shown(value)}")
+                        f"{{start: T}} (whole crank cycles from T s on), got {shown(value)}")
 
 
 def _metrics(value, where, kind):
@@ -323,13 +112,13 @@ def _metrics(value, where, kind):
         return default_metrics(kind)
     if not isinstance(value, list) or not value:
         raise CampaignError(f"{where}: metrics: expected a non-empty list of names, got "
-                            f"{_shown(value)}")
+                            f"{shown(value)}")
     for name in value:
         if name not in table:
             other = SCENARIO_METRICS if kind == 'scene' else SCENE_METRICS
             why = (f"a metric of {'scenario' if kind == 'scene' else 'scene'} campaigns"
                    if name in other else 'unknown metric')
-            raise CampaignError(f"{where}: metrics: {_shown(name)}: {why}; a {kind} "
+            raise CampaignError(f"{where}: metrics: {shown(name)}: {why}; a {kind} "
                                 f"campaign keeps: {', '.join(table)}")
     if len(set(value)) < len(value):
         raise CampaignError(f"{where}: metrics: {value} names a metric twice")
@@ -342,14 +131,14 @@ def _summary(value, where, names, metrics):
         raise CampaignError(f"{where}: summary: expected a map {{x, y, metrics}}")
     for key in value:
         if key not in ('x', 'y', 'metrics'):
-            raise _unknown(f"{where}: summary", key, ('x', 'y', 'metrics'))
+            raise unknown_key(f"{where}: summary", key, ('x', 'y', 'metrics'))
     for axis in ('x', 'y'):
         if axis in value and value[axis] not in names:
-            raise CampaignError(f"{where}: summary: {axis}: {_shown(value[axis])} is not a "
+            raise CampaignError(f"{where}: summary: {axis}: {shown(value[axis])} is not a "
                                 f"varied parameter ({', '.join(names)})")
-    shown = value.get('metrics', [])
-    if not isinstance(shown, list) or any(m not in metrics for m in shown):
-        raise CampaignError(f"{where}: summary: metrics: {str(shown)[:80]!r}: plot metrics kept "
+    plotted = value.get('metrics', [])
+    if not isinstance(plotted, list) or any(m not in metrics for m in plotted):
+        raise CampaignError(f"{where}: summary: metrics: {shown(plotted)}: plot metrics kept "
                             f"by the campaign ({', '.join(metrics)})")
     return dict(value)
 
@@ -377,7 +166,7 @@ def load_campaign(path):
                             f"{type(doc).__name__}")
     for key in doc:
         if key not in KEYS:
-            raise _unknown(where, key, KEYS)
+            raise unknown_key(where, key, KEYS)
     doc = _numbers(doc)
     if ('scene' in doc) == ('scenario' in doc):
         raise CampaignError(f"{where}: name either scene: (a plain run of a scene) or scenario: "
@@ -386,7 +175,7 @@ def load_campaign(path):
     base = doc[kind]
     if not isinstance(base, str) or not base:
         raise CampaignError(f"{where}: {kind}: expected a {kind} name or path, got "
-                            f"{_shown(base)}")
+                            f"{shown(base)}")
     name = doc.get('name', path.stem)
     description = doc.get('description', '')
     for key, value in (('name', name), ('description', description)):
@@ -400,7 +189,7 @@ def load_campaign(path):
         if not isinstance(controller, str) or ':' not in controller:
             raise CampaignError(f"{where}: controller: expected MODULE:FACTORY (e.g. "
                                 f"cvt_ros.control.speed_pi:reference_controller), got "
-                                f"{_shown(controller)}")
+                                f"{shown(controller)}")
     overrides = doc.get('overrides') or {}
     if not isinstance(overrides, dict):
         raise CampaignError(f"{where}: overrides: expected a map of scene parameters (dotted "
@@ -426,20 +215,20 @@ def load_campaign(path):
     if kind == 'scenario' and 'window' in doc:
         raise CampaignError(f"{where}: window: scenario metrics are per set-point/load step "
                             f"(the scenario's schedules), not over a window")
-    sampling = _choice(doc, 'sampling', where, SAMPLINGS, 'grid')
+    sampling = choice(doc, 'sampling', where, SAMPLINGS, 'grid')
     if 'vary' in doc and 'cases' in doc:
         raise CampaignError(f"{where}: give vary: (axes) or cases: (an explicit list), not both")
     variables, cases = (), ()
     if 'cases' in doc:
         if 'sampling' in doc:
             raise CampaignError(f"{where}: sampling: applies to vary:, not to explicit cases:")
-        cases = _explicit_cases(doc['cases'], where, kind, controller)
+        cases = parse_cases(doc['cases'], where, kind, controller, HARD_MAX_CASES)
     else:
         vary = doc.get('vary')
         if not isinstance(vary, dict) or not vary:
             raise CampaignError(f"{where}: vary: expected a map of parameter: values/range (at "
                                 f"least one), or cases: [...]")
-        variables = tuple(_variable(k, v, f"{where}: vary", kind, controller, sampling)
+        variables = tuple(parse_variable(k, v, f"{where}: vary", kind, controller, sampling)
                           for k, v in vary.items())
         both = [v.name for v in variables if v.name in fixed]
         if both:
@@ -453,7 +242,7 @@ def load_campaign(path):
     seed = _number(doc, 'seed', where, 0, 2 ** 63 - 1, 0, integer=True)
     metrics = _metrics(doc.get('metrics'), where, kind)
     budget = _number(doc, 'time_budget', where, 0.0, 1e6, DEFAULT_TIME_BUDGET, open_low=True)
-    record = _choice(doc, 'record', where, RECORD_FORMATS, 'none')
+    record = choice(doc, 'record', where, RECORD_FORMATS, 'none')
     campaign = Campaign(path, name, text, kind, base, fixed, controller, duration, sample_dt,
                         window, variables, cases, sampling, samples, seed, metrics, budget,
                         record, {}, description)
