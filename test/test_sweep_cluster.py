@@ -137,7 +137,7 @@ def test_a_worker_killed_mid_campaign_loses_nothing(tmp_path, cluster):
     assert all(r['status'] == 'ok' for r in rows), [r['error'] for r in rows]
     assert rows[killed['case']]['switches_per_second'] > 40     # the killed case ran again
     assert killed['pid'] not in client.run(os.getpid).values()  # ...on another worker process
-    client.wait_for_workers(2, timeout=120)                     # the nanny restarted it
+    client.wait_for_workers(2, timeout=300)                     # the nanny restarted it
 
 
 def test_a_case_that_kills_its_worker_every_time_is_recorded_and_the_rest_run(tmp_path,
@@ -154,7 +154,7 @@ def test_a_case_that_kills_its_worker_every_time_is_recorded_and_the_rest_run(tm
     assert [(r['case'], r['failure']) for r in failed] == [(4, 'killed')]
     assert 'its worker process died every time it ran this case' in failed[0]['error']
     assert 'on 2 different workers' in failed[0]['error']   # Dask's own account
-    cluster.client.wait_for_workers(2, timeout=120)
+    cluster.client.wait_for_workers(2, timeout=300)
 
 
 def test_cli_on_an_existing_cluster(tmp_path, cluster):

@@ -20,6 +20,7 @@ single cases, and a single case that does so twice over is recorded as failed ``
 task's rows are collected exactly once (one future per task, released when read) and the table
 holds one row per case id.
 """
+import itertools
 import os
 import time
 import uuid
@@ -283,6 +284,7 @@ def _run(handle, todo, store, event):
         raise SweepError(f"{len(todo)} cases to run and no cluster given")
     client = handle.client
     nonce = uuid.uuid4().hex[:8]
+    serial = itertools.count()
     batches = _Batches(todo, sum(handle.workers().values()))
     in_flight = {}
     finished = as_completed()
@@ -294,7 +296,9 @@ def _run(handle, todo, store, event):
             batch = batches.take()
             if not batch:
                 return
-            key = f"cvt-cases-{batch[0].index}-{len(batch)}-{nonce}"
+            # a key per submission: a batch split or retried after its worker died must not
+            # find the dead task's key still on the scheduler
+            key = f"cvt-cases-{batch[0].index}-{len(batch)}-{nonce}-{next(serial)}"
             future = client.submit(run_cases, batch, key=key, pure=False)
             in_flight[future.key] = batch
             finished.add(future)
