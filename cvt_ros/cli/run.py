@@ -12,7 +12,7 @@ from ..parameters import SPECS
 from ..physics.linkage import grashof_bound
 from ..scene import available_scenes, load_scene, parse_override, resolve
 from ..solver.fidelity import choose_fidelity
-from ..solver.offline import CsvWriter, SampleStatistics, run_scene, summarize, tail_start
+from ..solver.offline import CsvWriter, SampleStatistics, simulator_for, summarize, tail_start
 from .arguments import positive_float, positive_seconds
 
 # Bounds on what one run may ask for: beyond them it would run for years or fill the disk.
@@ -177,14 +177,13 @@ def run_command(args):
         if args.csv:
             csv = stack.enter_context(CsvWriter(args.csv))
             sinks.append(csv.add)
-        if not args.quiet:
+        sim = simulator_for(args.scene, overrides, origins)
+        update = None
+        if not args.quiet:   # after the kernels are loaded: the bar's 2 s delay is the run's
             bar, update = progress_bar(args.duration)
             stack.callback(bar.close)
-        else:
-            update = None
-        sim, result = run_scene(args.scene, args.duration, overrides, args.sample_dt,
-                                progress=update, origins=origins,
-                                on_samples=on_samples, keep_samples=bool(args.mcap))
+        result = sim.run(args.duration, args.sample_dt, progress=update, on_samples=on_samples,
+                         keep_samples=bool(args.mcap))
     result.wall_time = max(result.wall_time - writing[0], 0.0)   # the simulation's own time
     summary = summarize(result, args.duration, statistics)
     print(format_summary(summary, args.scene))

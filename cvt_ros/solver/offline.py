@@ -21,15 +21,19 @@ RATIO_DEFINED_BELOW = 1e-6
 RESIDUAL_SUSPECT = 1e-3
 
 
+def simulator_for(scene, overrides=None, origins=None):
+    """The simulator of ``scene`` (name or path) with ``overrides``, kernels loaded; ``origins``
+    names where each override came from (for error messages)."""
+    return make_simulator(load_scene(scene, overrides, origins))
+
+
 def run_scene(scene, duration, overrides=None, sample_dt=1e-3, progress=None, origins=None,
               on_samples=None, keep_samples=True):
-    """Load ``scene`` (name or path) with ``overrides``, simulate ``duration`` [s] sampled every
-    ``sample_dt`` [s]; returns (simulator, RunResult). ``progress(done, total)`` is called as it
-    goes; ``origins`` names where each override came from (for error messages);
-    ``on_samples(block)`` gets the sample rows as they are made, ``keep_samples=False`` keeps none
-    in the result (constant memory for any duration)."""
-    values = load_scene(scene, overrides, origins)
-    sim = make_simulator(values)
+    """Simulate ``scene`` for ``duration`` [s] sampled every ``sample_dt`` [s]; returns
+    (simulator, RunResult). ``progress(done, total)`` is called as it goes; ``on_samples(block)``
+    gets the sample rows as they are made, ``keep_samples=False`` keeps none in the result
+    (constant memory for any duration)."""
+    sim = simulator_for(scene, overrides, origins)
     return sim, sim.run(duration, sample_dt, progress=progress, on_samples=on_samples,
                         keep_samples=keep_samples)
 
@@ -158,4 +162,4 @@ def summarize(result, duration, statistics=None):
 
 
 __all__ = ['RATIO_DEFINED_BELOW', 'RESIDUAL_SUSPECT', 'CsvWriter', 'SampleStatistics',
-           'run_scene', 'statistics_of', 'summarize', 'tail_start', 'write_csv']
+           'run_scene', 'simulator_for', 'statistics_of', 'summarize', 'tail_start', 'write_csv']
