@@ -18,6 +18,7 @@ import signal
 import subprocess
 import sys
 import threading
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -43,7 +44,10 @@ if not ROS2.exists():
 
 NODE = '/cvt_sim'
 TIMEOUT = 120.0      # [s] for one ros2 command (they wait for their peers); a hang, not a pace
+SIDE_BY_SIDE = 4    # ros2 commands at once
+ATTEMPTS = 3        # for a ros2 param verb whose participant missed the node's services
 DBL_MAX_TEXT = '1.7976931348623157e+308'
+DDS_LOG = re.compile(r'(\x1b\[[\d;]*m)*\d{4}-\d\d-\d\d \d\d:\d\d:\d\d\.\d+ ')   # Fast DDS's log
 INTERFACE = {        # what `ros2 node info` must list: the node's whole interface
     'Subscribers': ['/crank_length_cmd: std_msgs/msg/Float64',
                     '/load_torque_cmd: std_msgs/msg/Float64',
@@ -72,18 +76,25 @@ class Ros2:
                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
 
     def run(self, *args):
-        return self.run_all(args)[0]
+        """One command's output: stdout, then stderr, without Fast DDS's own log lines (a busy
+        machine's shared-memory port files: `RTPS_TRANSPORT_SHM Error ...`, DDS falls back to
+        UDP). The `ros2 param` verbs give a new DDS participant a fixed 5 s to discover the
+        node's parameter services (upstream); when they did not, nothing was set or read, and
+        the command is asked again."""
+        for _ in range(ATTEMPTS):
+            proc = subprocess.run([sys.executable, str(ROS2), *args], env=self.env, text=True,
+                                  capture_output=True, timeout=TIMEOUT)
+            output = ''.join(line for line in (proc.stdout + proc.stderr).splitlines(True)
+                             if not DDS_LOG.match(line))
+            if 'Wait for service timed out waiting for parameter services' not in output:
+                break
+        return output
 
     def run_all(self, *commands):
-        """Run the commands at once; their outputs (stdout and stderr), in order."""
-        procs = [self.popen(*c) for c in commands]
-        try:
-            return [p.communicate(timeout=TIMEOUT)[0] for p in procs]
-        finally:
-            for p in procs:
-                if p.poll() is None:
-                    p.kill()
-                    p.wait()
+        """Run the commands side by side (a few at a time: a loaded 2-core machine still
+        schedules each); their outputs, in order."""
+        with ThreadPoolExecutor(max_workers=SIDE_BY_SIDE) as pool:
+            return list(pool.map(lambda c: self.run(*c), commands))
 
     def quiet(self, *args):
         """A command whose output does not matter (the daemon keeps no pipe of ours open)."""
