@@ -131,7 +131,7 @@ class LinkageMarkersNode(Node):
 
 def main(args=None):
     from .node import spin
-    return spin(LinkageMarkersNode, args)
+    return spin(LinkageMarkersNode, args, 'cvt_linkage_markers', __doc__.split('\n\n')[0])
 
 
 if __name__ == '__main__':

@@ -14,6 +14,7 @@ period, which is how ``cvt-sim scenario run --backend dds`` drives it). ``~/cycl
     cvt_speed_controller --ros-args -p setpoint:=60.0 -p kp:=2e-3 -p ki:=4e-3
     ros2 topic pub --once /speed_setpoint std_msgs/msg/Float64 "{data: 70.0}"
 """
+import argparse
 import math
 import os
 import sys
@@ -25,6 +26,7 @@ from rcl_interfaces.msg import ParameterDescriptor, SetParametersResult
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.utilities import remove_ros_args
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
@@ -156,16 +158,31 @@ class SpeedControllerNode(Node):
             self.crank_length_cmd_publisher.publish(self._command)
 
 
-def spin(make_node, args=None):
+def spin(make_node, args=None, prog=None, description=None):
     """Run the node ``make_node()`` builds until SIGINT / SIGTERM; the exit code (2 when it
-    refused its parameters). The main of every controller-kit node."""
-    rclpy.init(args=args)
+    refused its parameters or its command line). The main of every controller-kit node.
+
+    ``args``: the command line without the program name (None: sys.argv[1:]). Arguments before
+    ``--ros-args`` are the program's own: only ``-h/--help`` (which prints ``description`` and
+    exits 0 without starting ROS)."""
+    argv = list(sys.argv[1:] if args is None else args)
+    if description:   # a module docstring's first paragraph, without its ``name``: lead
+        description = ' '.join(description.split()).split('``: ', 1)[-1]
+    parser = argparse.ArgumentParser(
+        prog=prog or make_node.__name__, description=description,
+        epilog='ROS parameters and remappings follow --ros-args (-p name:=value, '
+               '--params-file FILE, -r from:=to).')
+    parser.parse_args(remove_ros_args(['x'] + argv)[1:])   # exits 0 on --help, 2 on unknowns
     try:
+        rclpy.init(args=['x'] + argv)
         node = make_node()
     except ValueError as exc:
-        print(f"{make_node.__name__}: error: {exc}", file=sys.stderr)
+        print(f"{parser.prog}: error: {exc}", file=sys.stderr)
         rclpy.try_shutdown()
         return 2
+    except KeyboardInterrupt:
+        rclpy.try_shutdown()
+        return 130
     try:
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
@@ -177,7 +194,7 @@ def spin(make_node, args=None):
 
 
 def main(args=None):
-    return spin(SpeedControllerNode, args)
+    return spin(SpeedControllerNode, args, 'cvt_speed_controller', __doc__.split('\n\n')[0])
 
 
 if __name__ == '__main__':
