@@ -20,3 +20,8 @@ def crashing(scenario):
             os._exit(3)
         return None
     return law
+
+
+def broken_factory(scenario):
+    """A controller factory that cannot even build its controller."""
+    raise RuntimeError('no gains file')

@@ -107,6 +107,15 @@ def test_scenario_case_step_metrics_and_a_raising_controller(tmp_path):
     rows = [run_case(t) for t in build_tasks(bad)]
     assert [r['failure'] for r in rows] == ['controller', 'controller']
     assert 'ZeroDivisionError' in rows[0]['error'] and 't = 0.50' in rows[0]['error']
+    broken = campaign_file(tmp_path, """\
+        scenario: conveyor_load_step
+        duration: 2.0
+        controller: sweep_controllers:broken_factory
+        vary: {load.viscous: [0.05]}
+        """, 'broken.yaml')
+    row = run_case(build_tasks(broken)[0])
+    assert row['failure'] == 'error' and row['error'].startswith('HarnessError: ')
+    assert "broken_factory() raised RuntimeError('no gains file')" in row['error']
 
 
 def test_table_parts_merge_and_resume(tmp_path, short_rows):

@@ -25,7 +25,7 @@ from .. import parameters
 from ..control.speed_pi import SpeedPIGains
 from ..physics.linkage import GrashofError
 from ..scene import SceneError, load_scene
-from .campaign import CampaignError
+from .errors import CampaignError
 
 FORMAT = 'cvt_ros.sweep/1'    # salt of the case ids: bump when a metric's definition changes
 
