@@ -17,6 +17,16 @@ NODE_NAME = 'cvt_sim'
 SCENES_DIR = Path(__file__).resolve().parent.parent / 'config' / 'scenes'
 
 
+# Parameters rclpy declares on every node (a `ros2 param dump` holds them): not the scene's; a
+# scene file may carry them, and the offline loader and the node both pass over them.
+ROS_OWN_PARAMETERS = ('use_sim_time', 'start_type_description_service')
+
+
+def is_ros_own(name):
+    """True for a parameter rclpy itself declares (use_sim_time, qos_overrides.*, ...)."""
+    return name in ROS_OWN_PARAMETERS or name.startswith('qos_overrides.')
+
+
 class SceneError(InputFileError):
     """A scene file that cannot be used; the message says which file, key and why."""
 
@@ -97,7 +107,8 @@ def read_scene(path):
         params = body['ros__parameters'] or {}
         if not isinstance(params, dict):
             raise SceneError(f"{path}: 'ros__parameters' must be a map of parameters")
-        flat.update({str(name): _yaml_number(v) for name, v in _flatten(params).items()})
+        flat.update({str(name): _yaml_number(v) for name, v in _flatten(params).items()
+                     if not is_ros_own(str(name))})
     return flat
 
 

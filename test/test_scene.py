@@ -187,3 +187,13 @@ def test_an_override_error_names_the_override_not_the_file():
     with pytest.raises(SceneError, match=r'^override lod\.torque: lod\.torque: unknown'):
         load_scene('paper', {'lod.torque': 1.0})
     assert parse_override('load.torque=[&a 1, *a]')[1] == '[&a 1, *a]'   # alias: stays text
+
+
+def test_a_ros2_param_dump_is_a_scene(tmp_path):
+    """`ros2 param dump /cvt_sim` holds rclpy's own parameters too: the offline loader takes the
+    dump as a scene and passes over them, as the node does."""
+    dump = write(tmp_path, "/cvt_sim:\n  ros__parameters:\n    use_sim_time: false\n"
+                           "    start_type_description_service: true\n"
+                           "    qos_overrides:\n      /clock:\n        publisher:\n"
+                           "          depth: 1\n    load:\n      torque: 7.0\n", 'dump.yaml')
+    assert load_scene(dump)['load.torque'] == 7.0

@@ -20,14 +20,14 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from .. import parameters as params_mod
 from ..parameters import ParameterError
 from ..physics.linkage import GrashofError, grashof_bound
-from ..scene import SceneError, read_scene
+from ..scene import ROS_OWN_PARAMETERS, SceneError, is_ros_own, read_scene
 
 DEFAULT_SCENE = 'conveyor'
 # rk4 is the node's default solver: fixed sub-steps with events located inside the step, so every
 # control period costs the same (dopri5's adaptive steps make the cost per period vary).
 REALTIME_SOLVER = 'rk4'
-# parameters rclpy or other layers declare themselves: allowed in params files and -p
-FOREIGN_PARAMETERS = ('use_sim_time', 'start_type_description_service')
+# parameters rclpy declares itself: allowed in params files and -p (scene.ROS_OWN_PARAMETERS)
+FOREIGN_PARAMETERS = ROS_OWN_PARAMETERS
 
 # A number as Python's str() writes it (and so ``ros2 param dump`` → ``load``, ros2/rclpy#1672)
 # that YAML 1.1 reads as a string: no dot (``2e-06``), or Python's ``inf``/``nan``.
@@ -44,7 +44,7 @@ def node_values(base_scene=DEFAULT_SCENE, overrides=None):
     for name, value in sorted((overrides or {}).items()):
         if name in params_mod.SPECS:
             raw[name] = value
-        elif name not in FOREIGN_PARAMETERS and not name.startswith('qos_overrides.'):
+        elif not is_ros_own(name):
             raise SceneError(f"unknown parameter {name}{closest_name(name)}; "
                              f"`cvt-sim params --node` lists them")
     try:
