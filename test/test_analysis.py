@@ -8,13 +8,13 @@ one clear line on stderr, never a traceback.
 import csv
 import json
 import math
-import os
 import re
 import subprocess
 import sys
 
 import numpy as np
 import pytest
+from recording_helpers import child_env
 
 from cvt_ros.analysis import analyze_trace, crank_length_from_angles, load
 from cvt_ros.analysis.plots import step_title
@@ -31,16 +31,9 @@ DT = 5e-4
 DURATION = 3.0
 
 
-def _env():
-    env = dict(os.environ)
-    env.setdefault('AMENT_PREFIX_PATH', sys.prefix)
-    env['MPLBACKEND'] = 'Agg'
-    return env
-
-
 def cvt_sim(*args, code=0):
     proc = subprocess.run([*CLI, *map(str, args)], capture_output=True, text=True, timeout=120,
-                          env=_env())
+                          env=child_env())
     assert proc.returncode == code, proc.stdout + proc.stderr
     assert 'Traceback' not in proc.stderr
     return proc

@@ -7,18 +7,12 @@ import subprocess
 import sys
 
 import pytest
+from recording_helpers import child_env
 
 from cvt_ros.cli.main import main
 from cvt_ros.recording import OutputError, OutputFiles
 
 CLI = [sys.executable, '-m', 'cvt_ros']
-
-
-def _env():
-    env = dict(os.environ)
-    env.setdefault('AMENT_PREFIX_PATH', sys.prefix)
-    env['MPLBACKEND'] = 'Agg'
-    return env
 
 
 @pytest.fixture(scope='module')
@@ -101,7 +95,7 @@ def test_a_full_disk_leaves_no_partial_file_and_keeps_old_outputs(recording, tmp
     proc = subprocess.run(
         [*CLI, 'analyze', str(recording), '--cycles-csv', str(tmp_path / 'cycles.csv'),
          '--json', str(old), '--plots', str(plots)],
-        capture_output=True, text=True, timeout=300, env=_env(),
+        capture_output=True, text=True, timeout=300, env=child_env(),
         preexec_fn=_limited(30_000))
     err = proc.stderr.strip().splitlines()
     assert proc.returncode == 2 and len(err) == 1, proc.stderr
@@ -113,7 +107,7 @@ def test_a_full_disk_leaves_no_partial_file_and_keeps_old_outputs(recording, tmp
 def test_export_onto_a_full_disk(recording, tmp_path):
     proc = subprocess.run(
         [*CLI, 'export', str(recording), '--csv', str(tmp_path / 'v.csv'), '--events',
-         str(tmp_path / 'e.csv')], capture_output=True, text=True, timeout=300, env=_env(),
+         str(tmp_path / 'e.csv')], capture_output=True, text=True, timeout=300, env=child_env(),
         preexec_fn=_limited(20_000))
     assert proc.returncode == 2 and 'File too large' in proc.stderr, proc.stderr
     assert listing(tmp_path) == []
@@ -122,7 +116,7 @@ def test_export_onto_a_full_disk(recording, tmp_path):
 def test_recover_onto_a_full_disk_leaves_nothing(recording, tmp_path):
     out = tmp_path / 'r.mcap'
     proc = subprocess.run([*CLI, 'recover', str(recording), '-o', str(out)],
-                          capture_output=True, text=True, timeout=300, env=_env(),
+                          capture_output=True, text=True, timeout=300, env=child_env(),
                           preexec_fn=_limited(20_000))
     assert proc.returncode == 2 and 'File too large' in proc.stderr, proc.stderr
     assert 'Traceback' not in proc.stderr and listing(tmp_path) == []

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from recording_helpers import child_env, progress_until
 
 # The ROS 2 wheels install share/<pkg> into the venv; ament_index looks there (the Makefile sets
 # this too).
@@ -81,13 +82,6 @@ def _json_hash(type_name: str) -> str:
     return next(e['hash_string'] for e in data['type_hashes'] if e['type_name'] == type_name)
 
 
-def _child_env() -> dict[str, str]:
-    env = dict(os.environ)
-    env['PYTHONPATH'] = os.pathsep.join(filter(None, [str(ROOT), env.get('PYTHONPATH')]))
-    env['PYTHONUNBUFFERED'] = '1'
-    return env
-
-
 def _stamp(ns: int) -> Time:
     return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
 
@@ -146,7 +140,7 @@ def test_import_does_not_load_rclpy() -> None:
             'assert "rclpy" not in sys.modules and "mcap" not in sys.modules; '
             'r.message_definition_text("std_msgs/msg/Bool"); '
             'assert "rclpy" not in sys.modules')
-    subprocess.run([sys.executable, '-c', code], env=_child_env(), check=True, timeout=60)
+    subprocess.run([sys.executable, '-c', code], env=child_env(), check=True, timeout=60)
 
 
 def test_joint_state_schema_text_is_rosbag2_concatenation() -> None:
@@ -566,7 +560,7 @@ print(json.dumps({'raised': raised, 'first': first, 'dropped': dropped, 'message
 
 def test_disk_full_fails_once_then_drops_quietly(tmp_path: Path) -> None:
     path = tmp_path / 'full.mcap'
-    proc = subprocess.run([sys.executable, '-c', DISK_FULL_CHILD, str(path)], env=_child_env(),
+    proc = subprocess.run([sys.executable, '-c', DISK_FULL_CHILD, str(path)], env=child_env(),
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr
     result = json.loads(proc.stdout.strip().splitlines()[-1])
@@ -738,7 +732,7 @@ while True:
 
 
 def _start(code: str, *args: object) -> subprocess.Popen:
-    proc = subprocess.Popen([sys.executable, '-c', code, *map(str, args)], env=_child_env(),
+    proc = subprocess.Popen([sys.executable, '-c', code, *map(str, args)], env=child_env(),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     line = proc.stdout.readline()
     if line.strip() != 'ready':
@@ -750,17 +744,9 @@ def _start(code: str, *args: object) -> subprocess.Popen:
 def test_sigkill_loses_at_most_the_last_second(tmp_path: Path) -> None:
     path = tmp_path / 'killed.mcap'
     proc = _start(CRASH_CHILD, path)
-    # kill once the child has recorded ≥ 1500 messages over ≥ 2 s (its own report, so a slow
-    # machine only takes longer)
-    progress: list[tuple[int, int]] = []
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline:
-        fields = proc.stdout.readline().split()
-        if len(fields) != 2:
-            break
-        progress.append((int(fields[0]), int(fields[1])))
-        if progress[-1][0] >= 1500 and progress[-1][1] - progress[0][1] >= 2_000_000_000:
-            break
+    # kill once the child has recorded ≥ 1500 messages over ≥ 2 s (its own report)
+    progress = progress_until(proc, lambda first, last: last[0] >= 1500 and
+                              last[1] - first[1] >= 2_000_000_000)
     kill_ns = time.time_ns()
     proc.kill()
     out, _ = proc.communicate(timeout=10)
@@ -856,7 +842,7 @@ if sys.argv[2] == 'raise':
 def test_exit_without_finish_still_completes_file(tmp_path: Path, ending: str) -> None:
     path = tmp_path / 'forgotten.mcap'
     proc = subprocess.run([sys.executable, '-c', EXIT_CHILD, str(path), ending],
-                          env=_child_env(), capture_output=True, text=True, timeout=60)
+                          env=child_env(), capture_output=True, text=True, timeout=60)
     assert proc.returncode == (0 if ending == 'return' else 1), proc.stderr
     info = summary(path)  # the atexit hook finished the file
     assert info.complete and info.message_count == 500

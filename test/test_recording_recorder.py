@@ -7,7 +7,6 @@ signals on a child process that records in real time, as the node does.
 """
 import json
 import math
-import os
 import signal
 import subprocess
 import sys
@@ -18,6 +17,7 @@ import pytest
 import yaml
 from mcap.reader import make_reader
 from rclpy.serialization import deserialize_message
+from recording_helpers import child_env, progress_until
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2.metadata import parse_qos
 from rosgraph_msgs.msg import Clock
@@ -44,13 +44,6 @@ CLI = [sys.executable, '-m', 'cvt_ros']
 TYPES = {I.resolve_topic(spec.name, '/'): spec.type_name for spec in I.TOPICS.values()}
 QOS_KEYS = ['history', 'depth', 'reliability', 'durability', 'deadline', 'lifespan',
             'liveliness', 'liveliness_lease_duration', 'avoid_ros_namespace_conventions']
-
-
-def _env():
-    env = dict(os.environ)
-    env.setdefault('AMENT_PREFIX_PATH', sys.prefix)
-    env['PYTHONUNBUFFERED'] = '1'
-    return env
 
 
 @pytest.fixture(scope='module')
@@ -196,7 +189,7 @@ def test_run_recording_read_by_rosbags(paper_run):
 def test_cli_run_mcap_and_target_errors(tmp_path):
     out = tmp_path / 'cli.mcap'
     proc = subprocess.run([*CLI, 'run', 'paper', '--duration', '0.2', '--mcap', str(out)],
-                          capture_output=True, text=True, timeout=120, env=_env())
+                          capture_output=True, text=True, timeout=120, env=child_env())
     assert proc.returncode == 0, proc.stderr
     assert f'messages → {out}' in proc.stdout
     info = summary(out)
@@ -206,12 +199,12 @@ def test_cli_run_mcap_and_target_errors(tmp_path):
             ([str(tmp_path / 'no' / 'dir.mcap')], 'no such directory'),
             ([str(tmp_path)], 'is a directory')):
         bad = subprocess.run([*CLI, 'run', 'paper', '--duration', '0.1', '--mcap', *args],
-                             capture_output=True, text=True, timeout=120, env=_env())
+                             capture_output=True, text=True, timeout=120, env=child_env())
         assert bad.returncode == 2 and fragment in bad.stderr, bad.stderr
         assert 'Traceback' not in bad.stderr and len(bad.stderr.strip().splitlines()) == 1
     again = subprocess.run([*CLI, 'run', 'paper', '--duration', '0.1', '--mcap', str(out),
                             '--overwrite'], capture_output=True, text=True, timeout=120,
-                           env=_env())
+                           env=child_env())
     assert again.returncode == 0 and summary(out).topics['/clock'].message_count == 101
 
 
@@ -297,7 +290,7 @@ print(json.dumps({'t': sim.t, 'errors': [str(e) for e in errors], 'failed': rec.
                   'accepted': accepted, 'steps': steps, 'after': after}))
 '''
     proc = subprocess.run([sys.executable, '-c', child, str(tmp_path / 'full.mcap')],
-                          capture_output=True, text=True, timeout=120, env=_env())
+                          capture_output=True, text=True, timeout=120, env=child_env())
     assert proc.returncode == 0, proc.stderr
     out = json.loads(proc.stdout.strip().splitlines()[-1])
     assert out['failed'] and out['steps'] < 100_000
@@ -347,23 +340,14 @@ except KeyboardInterrupt:
 
 
 def _progress_until(proc, sim_ns, wall_ns):
-    """Read the live child's progress lines (simulation ns, monotonic ns) until it has run
-    ``sim_ns`` of simulated time over at least ``wall_ns`` of wall time: a slow machine only
-    takes longer."""
-    progress = []
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline:
-        fields = proc.stdout.readline().split()
-        if len(fields) != 2:
-            break
-        progress.append((int(fields[0]), int(fields[1])))
-        if progress[-1][0] >= sim_ns and progress[-1][1] - progress[0][1] >= wall_ns:
-            break
-    return progress
+    """Until the live child (printing simulation ns, monotonic ns) has run ``sim_ns`` of
+    simulated time over at least ``wall_ns`` of wall time."""
+    return progress_until(proc, lambda first, last: last[0] >= sim_ns and
+                          last[1] - first[1] >= wall_ns)
 
 
 def _start_live(path, mode):
-    proc = subprocess.Popen([sys.executable, '-c', LIVE_CHILD, str(path), mode], env=_env(),
+    proc = subprocess.Popen([sys.executable, '-c', LIVE_CHILD, str(path), mode], env=child_env(),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     line = proc.stdout.readline()
     if line.strip() != 'ready':
@@ -405,7 +389,7 @@ def test_sigkill_loses_at_most_the_last_second_and_recovers(tmp_path):
     assert must >= 500_000_000, progress[-3:]
     fixed = tmp_path / 'killed.recovered.mcap'
     proc = subprocess.run([*CLI, 'recover', str(path)], capture_output=True, text=True,
-                          timeout=60, env=_env())
+                          timeout=60, env=child_env())
     assert proc.returncode == 0, proc.stderr
     assert f'→ {fixed}' in proc.stdout and '/joint_states' in proc.stdout
     info = summary(fixed)

@@ -106,7 +106,11 @@ def _start_subscriber(env, out, expect, timeout=30.0):
     proc = subprocess.Popen([sys.executable, '-c', SUBSCRIBER, str(out), str(expect),
                              str(timeout)], env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
-    line = proc.stdout.readline()
+    # Fast DDS may print its own log lines first (shared-memory port files of a busy machine)
+    for _ in range(50):
+        line = proc.stdout.readline()
+        if not line or line.strip() == 'ready':
+            break
     assert line.strip() == 'ready', proc.stderr.read()
     return proc
 

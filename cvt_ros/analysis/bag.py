@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import math
 import struct
-import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -233,9 +232,7 @@ def load_mcap(path: str, *, namespace: str | None = None
 
     info = RecordingInfo(path, 'mcap')
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter('ignore')
-            bag = summary(path)
+        bag = summary(path)
     except RecordingReadError as exc:
         raise AnalysisError(str(exc)) from None
     info.problems.extend(bag.problems)

@@ -16,6 +16,7 @@ Typical use (in a node)::
 from .definitions import (
     MessageDefinition,
     get_message_definition,
+    message_class,
     message_definition_text,
     normalize_type_name,
     type_description_hash,
@@ -56,6 +57,7 @@ __all__ = [
     'TopicSummary',
     'check_target',
     'get_message_definition',
+    'message_class',
     'message_definition_text',
     'normalize_type_name',
     'offered_qos_profiles_yaml',

@@ -31,6 +31,7 @@ from .errors import MessageDefinitionError
 __all__ = [
     'MessageDefinition',
     'get_message_definition',
+    'message_class',
     'message_definition_text',
     'normalize_type_name',
     'type_description_hash',
@@ -99,6 +100,27 @@ def type_name_of(message_or_class: object) -> str:
     if len(parts) < 2 or parts[1] != 'msg' or not hasattr(cls, '_TYPE_SUPPORT'):
         raise MessageDefinitionError(f'{cls!r} is not a generated ROS 2 message class')
     return f'{parts[0]}/msg/{cls.__name__}'
+
+
+@lru_cache(maxsize=256)
+def message_class(type_name: str) -> type:
+    """The installed rclpy class of message type ``type_name`` (``pkg/msg/Type`` or
+    ``pkg/Type``). A name read from a recording is looked up in the ament index first, so a
+    hostile name never imports an arbitrary module. Raises :class:`MessageDefinitionError`."""
+    import importlib
+
+    pkg, _, name = _split(normalize_type_name(type_name))
+    if _read_interface_file(pkg, 'msg', name, '.msg') is None:
+        raise MessageDefinitionError(f'message type {type_name!r} is not installed (no '
+                                     f'{pkg}/msg/{name}.msg in the ament index)')
+    try:
+        cls = getattr(importlib.import_module(f'{pkg}.msg'), name)
+    except (ImportError, AttributeError) as exc:
+        raise MessageDefinitionError(
+            f'message type {type_name!r} is not available in this Python environment') from exc
+    if not isinstance(cls, type) or not hasattr(cls, '_TYPE_SUPPORT'):
+        raise MessageDefinitionError(f'{type_name!r} is not a generated ROS 2 message class')
+    return cls
 
 
 def _share_dir(pkg: str, wanted: str) -> str:

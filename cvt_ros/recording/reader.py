@@ -24,7 +24,6 @@ no more memory than that. Everything skipped is reported.
 
 from __future__ import annotations
 
-import importlib
 import io
 import os
 import struct
@@ -32,7 +31,6 @@ import warnings
 import zlib
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
-from functools import lru_cache
 from typing import Any
 
 from .errors import MessageDefinitionError, RecordingReadError, RecordingReadWarning
@@ -49,21 +47,6 @@ _OP_NAMES = {1: 'Header', 2: 'Footer', 3: 'Schema', 4: 'Channel', 5: 'Message', 
              15: 'DataEnd'}
 _MSG_HEAD = struct.Struct('<HIQQ')
 _REC_HEAD = struct.Struct('<BQ')
-
-
-@lru_cache(maxsize=256)
-def _message_class(type_name: str) -> type:
-    parts = type_name.split('/')
-    if len(parts) == 2:
-        parts = [parts[0], 'msg', parts[1]]
-    if len(parts) != 3:
-        raise MessageDefinitionError(f'invalid message type name {type_name!r}')
-    try:
-        module = importlib.import_module(f'{parts[0]}.{parts[1]}')
-        return getattr(module, parts[2])
-    except (ImportError, AttributeError) as exc:
-        raise MessageDefinitionError(
-            f'message type {type_name!r} is not available in this Python environment') from exc
 
 
 @dataclass(frozen=True)
@@ -85,7 +68,9 @@ class BagMessage:
                 f'cannot deserialize {self.message_encoding!r} messages on {self.topic!r}')
         from rclpy.serialization import deserialize_message
 
-        return deserialize_message(self.data, _message_class(self.type_name))
+        from .definitions import message_class
+
+        return deserialize_message(self.data, message_class(self.type_name))
 
 
 @dataclass(frozen=True)

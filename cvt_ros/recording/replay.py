@@ -22,10 +22,8 @@ rclpy is imported only inside the functions: this module imports without ROS.
 
 from __future__ import annotations
 
-import importlib
 import threading
 import time
-import warnings
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
@@ -80,16 +78,6 @@ def qos_from_offered(text: str, default: Mapping[str, Any] | None = None):
         else DurabilityPolicy.VOLATILE)
 
 
-def _message_class(type_name: str) -> type:
-    """The installed Python class of ``pkg/msg/Type`` (ImportError/AttributeError if absent)."""
-    parts = type_name.split('/')
-    if len(parts) == 2:
-        parts = [parts[0], 'msg', parts[1]]
-    if len(parts) != 3 or not all(parts):
-        raise ValueError(f'invalid message type {type_name!r}')
-    return getattr(importlib.import_module(f'{parts[0]}.{parts[1]}'), parts[2])
-
-
 def _subscribers_matched(node: Any, publishers: Mapping[str, Any]) -> bool:
     """At least one subscriber matched, and every subscription the ROS graph knows of on the
     replayed topics matched by our publisher (DDS discovery done for them)."""
@@ -114,16 +102,15 @@ def replay(path: str, *, rate: float = 1.0, topics: Iterable[str] | None = None,
     from rclpy.duration import Duration
     from rosgraph_msgs.msg import Clock
 
-    from .errors import RecordingReadError
+    from .definitions import message_class
+    from .errors import MessageDefinitionError, RecordingReadError
     from .reader import read_messages, summary
 
     if not rate > 0:
         raise ReplayError(f'--rate must be positive, got {rate!r}')
     stop = stop or threading.Event()
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter('ignore')
-            bag = summary(path)
+        bag = summary(path)
     except RecordingReadError as exc:
         raise ReplayError(str(exc)) from None
     available = {name: t for name, t in bag.topics.items()}
@@ -147,9 +134,9 @@ def replay(path: str, *, rate: float = 1.0, topics: Iterable[str] | None = None,
                 skipped.append(f'{name} ({topic.message_encoding} encoding)')
                 continue
             try:
-                cls = _message_class(topic.type_name)
-            except (ImportError, AttributeError, ValueError):
-                skipped.append(f'{name} (type {topic.type_name} not installed)')
+                cls = message_class(topic.type_name)
+            except MessageDefinitionError:
+                skipped.append(f'{name[:80]} (type {topic.type_name[:80]} not installed)')
                 continue
             key = I.topic_key(name)
             default = I.QOS.get(key) if key else None

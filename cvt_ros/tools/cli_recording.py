@@ -10,45 +10,25 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-
-def _rate(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'{text!r} is not a number') from None
-    if not 0.0 < value < float('inf'):
-        raise argparse.ArgumentTypeError(f'{text!r} must be a positive finite number')
-    return value
+from ..cli.arguments import non_negative_float, positive_float
 
 
-def _seconds(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'{text!r} is not a number') from None
-    if not 0.0 <= value < float('inf'):
-        raise argparse.ArgumentTypeError(f'{text!r} must be a finite number ≥ 0')
-    return value
+def _in_range(convert: Any, low: float, high: float, what: str) -> Any:
+    """An argparse type: ``convert(text)`` within [low, high], else one argparse error line."""
+    def parse(text: str) -> Any:
+        try:
+            value = convert(text)
+        except (ValueError, OverflowError):
+            raise argparse.ArgumentTypeError(f'{text[:40]!r} is not {what}') from None
+        if not low <= value <= high:
+            raise argparse.ArgumentTypeError(f'{text[:40]!r} must be in [{low:g}, {high:g}]')
+        return value
+    parse.__name__ = what
+    return parse
 
 
-def _fraction(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'{text!r} is not a number') from None
-    if not 0.0 < value < 1.0:
-        raise argparse.ArgumentTypeError(f'{text!r} must be in (0, 1)')
-    return value
-
-
-def _count(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f'{text!r} is not a whole number') from None
-    if not 2 <= value <= 1_000_000:
-        raise argparse.ArgumentTypeError(f'{text!r} must be in [2, 1000000]')
-    return value
+_fraction = _in_range(float, 1e-9, 0.5, 'a number')
+_count = _in_range(int, 2, 1_000_000, 'a whole number')
 
 
 def add_parsers(sub: Any) -> None:
@@ -60,14 +40,14 @@ def add_parsers(sub: Any) -> None:
                     'times scaled by --rate, publishing /clock. For users without rosbag2 '
                     '(`ros2 bag play FILE` does the same).')
     replay.add_argument('file', help='MCAP recording')
-    replay.add_argument('--rate', type=_rate, default=1.0, metavar='R',
+    replay.add_argument('--rate', type=positive_float, default=1.0, metavar='R',
                         help='speed factor (2 = twice as fast; default 1)')
     replay.add_argument('--topics', nargs='+', metavar='TOPIC',
                         help='replay only these topics (default: all)')
     replay.add_argument('--loop', action='store_true', help='start over at the end')
     replay.add_argument('--no-clock', action='store_true',
                         help='do not publish /clock (unless it is a recorded topic)')
-    replay.add_argument('--delay', type=_seconds, default=1.0, metavar='S',
+    replay.add_argument('--delay', type=non_negative_float, default=1.0, metavar='S',
                         help='wait S seconds before the first message, for subscribers to '
                              'connect (default 1)')
     replay.add_argument('--wait-for-subscribers', action='store_true',
