@@ -166,7 +166,8 @@ def test_the_docs_controller_example_runs_as_written(tmp_path, monkeypatch):
     monkeypatch.syspath_prepend(str(tmp_path))
     sc = load_scenario('conveyor_load_step', {'duration': 8.0})
     run = run_scenario(sc, 'my_pkg.pi:make')
-    # the plain PI winds up against the 10 mm/s actuator and the coasting clutch (as the docs
-    # say): the kit shows it; the reference controller's anti-windup does not
-    assert run.ok and run.steps[1]['max_deviation'] > 5.0 and run.clamped > 0
+    # the docs' PI respects the 10 mm/s actuator (rate-limited command, conditional integration):
+    # it holds the load step within 1 rad/s (the docs say 0.66) and is never clamped, like the
+    # reference controller (0.63)
+    assert run.ok and run.steps[1]['max_deviation'] < 1.0 and run.clamped == 0
     assert run_scenario(sc).steps[1]['max_deviation'] < 1.0
