@@ -3,7 +3,7 @@ a wall-clock budget: a hang is a failed case (the worker is killed and replaced)
 test run. The worker imports the package once, so a case costs its own run time only.
 
 ``Worker.run(argv)`` → ``Outcome(code, stdout, stderr, traceback, hung)``: ``traceback`` holds the
-text of any exception that escaped ``cvt_ros.cli.main`` (a bug: the CLI turns every error into
+text of any exception that escaped ``cvt_ros.cli.main()`` (a bug: the CLI turns every error into
 one line and an exit code).
 """
 import contextlib

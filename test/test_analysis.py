@@ -479,7 +479,7 @@ def test_damaged_inputs_give_partial_results_and_one_error_line(paper, tmp_path)
     ('missing', 'no such file'),
 ])
 def test_unusable_inputs_exit_2_with_one_line(paper, tmp_path, capsys, content, fragment):
-    from cvt_ros.cli.main import main
+    from cvt_ros.cli import main
 
     bad = tmp_path / 'bad.mcap'
     if content is None:

@@ -9,7 +9,7 @@ import sys
 import pytest
 from recording_helpers import child_env
 
-from cvt_ros.cli.main import main
+from cvt_ros.cli import main
 from cvt_ros.recording import OutputError, OutputFiles
 
 CLI = [sys.executable, '-m', 'cvt_ros']

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 from rcl_interfaces.msg import ParameterType
 
-from cvt_ros.cli.main import main as cvt_sim
+from cvt_ros.cli import main as cvt_sim
 from cvt_ros.device.descriptors import (
     coerce,
     describe,

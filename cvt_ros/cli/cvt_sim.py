@@ -13,7 +13,7 @@ from ..physics.linkage import GrashofError
 from ..recording.errors import RecordingError
 from ..scene import SceneError, available_scenes
 from ..solver.simulator import SimulationError
-from . import demo, run, sweep
+from . import demo, recording, run, scenario, sweep
 from .arguments import Parser
 
 DESCRIPTION = """\
@@ -46,11 +46,8 @@ def build_parser():
     sub = parser.add_subparsers(dest='command', metavar='COMMAND')
     run.add_parsers(sub)
 
-    from ..tools.cli_recording import add_parsers as add_recording_parsers
-    add_recording_parsers(sub)
-
-    from ..scenario.commands import add_parser as add_scenario_parser
-    add_scenario_parser(sub)   # cvt-sim scenario run|list (controller tests)
+    recording.add_parsers(sub)
+    scenario.add_parser(sub)   # cvt-sim scenario run|list (controller tests)
 
     sweep.add_parser(sub)   # cvt-sim sweep CAMPAIGN --out DIR (campaigns on Dask)
     demo.add_parser(sub)

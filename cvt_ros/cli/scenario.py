@@ -7,8 +7,8 @@ path), nothing run.
 import sys
 
 from ..recording.errors import RecordingError
-from .harness import HarnessError, run_scenario
-from .model import ScenarioError, available_scenarios, load_scenario
+from ..scenario.harness import HarnessError, run_scenario
+from ..scenario.model import ScenarioError, available_scenarios, load_scenario
 
 
 def add_parser(sub):
@@ -63,7 +63,7 @@ def _fail(message, code=2):
 
 
 def list_command(args):
-    from .model import resolve_scenario
+    from ..scenario.model import resolve_scenario
     for name in available_scenarios():
         first = resolve_scenario(name).read_text().splitlines()[0].lstrip('# ')
         print(f"{name:28s} {first}")
