@@ -39,6 +39,10 @@ RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
 LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1000,
                      reliability=ReliabilityPolicy.RELIABLE,
                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+# every message kept until taken: a lockstep burst (thousands of samples in milliseconds) must not
+# overrun a probe whose executor takes ~100 µs per message
+KEEP_ALL = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.VOLATILE)
 BEST_EFFORT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100,
                          reliability=ReliabilityPolicy.BEST_EFFORT,
                          durability=DurabilityPolicy.VOLATILE)
@@ -244,19 +248,21 @@ def diagnostics_values(msg):
     return {kv.key: kv.value for kv in msg.status[0].values}
 
 
-def flood(domain, topic, rate, seconds, values):
-    """Run the flooder in its own process: ``rate`` Float64 messages per second."""
-    cmd = [sys.executable, os.path.abspath(__file__), 'flood', topic, str(rate), str(seconds)]
+def flood(domain, topic, rate, seconds, values, keep_all=False):
+    """Run the flooder in its own process: ``rate`` Float64 messages per second (``keep_all``:
+    its publisher keeps every message until delivered, so none is lost on its side)."""
+    cmd = [sys.executable, os.path.abspath(__file__), 'flood' + ('_all' if keep_all else ''),
+           topic, str(rate), str(seconds)]
     cmd += [repr(float(v)) for v in values]
     return subprocess.Popen(cmd, env=ros_env(domain), stdout=subprocess.PIPE, text=True,
                             pass_fds=_lock_fds(domain))
 
 
-def _flood_main(topic, rate, seconds, *values):
+def _flood_main(keep_all, topic, rate, seconds, *values):
     from std_msgs.msg import Float64
     rclpy.init()
     node = Node('cvt_test_flood')
-    pub = node.create_publisher(Float64, topic, RELIABLE)
+    pub = node.create_publisher(Float64, topic, KEEP_ALL if keep_all else RELIABLE)
     wait_for(lambda: pub.get_subscription_count() > 0, 10.0)
     rate, seconds = float(rate), float(seconds)
     cycle = [Float64(data=float(v)) for v in values]
@@ -277,12 +283,13 @@ def _flood_main(topic, rate, seconds, *values):
 
 
 if __name__ == '__main__':
-    if len(sys.argv) > 1 and sys.argv[1] == 'flood':
-        _flood_main(*sys.argv[2:])
+    if len(sys.argv) > 1 and sys.argv[1] in ('flood', 'flood_all'):
+        _flood_main(sys.argv[1] == 'flood_all', *sys.argv[2:])
     else:
         sys.exit(f"usage: {sys.argv[0]} flood TOPIC RATE SECONDS VALUE...")
 
 
 __all__ = ['NodeProcess', 'Probe', 'Collector', 'domain_id', 'wait_for', 'flood', 'stamp_s',
-           'stamp_ns', 'diagnostics_values', 'RELIABLE', 'LATCHED', 'BEST_EFFORT', 'SCENES',
+           'stamp_ns', 'diagnostics_values', 'RELIABLE', 'LATCHED', 'BEST_EFFORT', 'KEEP_ALL',
+           'SCENES',
            'signal']

@@ -8,6 +8,7 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from node_harness import (
     BEST_EFFORT,
+    KEEP_ALL,
     LATCHED,
     NodeProcess,
     Probe,
@@ -42,7 +43,8 @@ def device():
     with NodeProcess(domain, ['-r', f'__ns:={NS}']) as proc:
         probe = Probe(domain)
         try:
-            joints = probe.subscribe(JointState, f'{NS}/joint_states')
+            # keep-all: a probe behind by a second on a busy machine still gets every sample
+            joints = probe.subscribe(JointState, f'{NS}/joint_states', KEEP_ALL)
             diagnostics = probe.subscribe(DiagnosticArray, '/diagnostics')
             assert wait_for(lambda: len(joints) > 0, 180.0), proc.output()
             yield SimpleNamespace(domain=domain, proc=proc, probe=probe, joints=joints,
@@ -185,65 +187,44 @@ def _state(rows, k):
                                      'omega3', 'omega4')]]
 
 
-def test_crank_step_raises_output_speed_as_the_offline_core_predicts(device):
+def test_crank_step_in_realtime_acts_at_one_period_as_the_offline_core_predicts(device):
+    """A crank command sent while the node runs in realtime acts at one control period, after
+    it was sent: the node's samples are the offline core's without the command up to that
+    period and, from it on, the offline core's with the command at that period — to the bit.
+    (When it lands depends on DDS and the machine: that is the benchmark's to measure.)"""
     probe = device.probe
     joints = device.joints
-    result = probe.set_parameters(NODE, real_time_factor=4.0)   # 7 s of simulation in ~2 s
-    assert result[0].successful, result[0].reason
+    crank = probe.publisher(Float64, f'{NS}/crank_length_cmd')
+    assert wait_for(lambda: crank.get_subscription_count() > 0, 5.0)
+    # /clock with depth 1 is the node's latest time (joint_states may queue in the probe)
+    clock = probe.subscribe(Clock, '/clock',
+                            QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
     try:
-        crank = probe.publisher(Float64, f'{NS}/crank_length_cmd')
-        assert wait_for(lambda: crank.get_subscription_count() > 0, 5.0)
-        # /clock with depth 1 is the node's latest time (joint_states may queue in the probe)
-        clock = probe.subscribe(Clock, '/clock',
-                                QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
         n0 = reset(probe, joints)
 
         def now():
             last = clock.last()
             return last.clock.sec + last.clock.nanosec * 1e-9 if last is not None else -1.0
-        assert wait_for(lambda: 2.0 <= now() < 3.0, 10.0)
-        t_sent = now()
+        assert wait_for(lambda: 1.0 <= now() < 2.5, 30.0)
+        t_seen = now()   # the node had reached this time when the command was sent
         crank.publish(Float64(data=0.06))
-        assert wait_for(lambda: stamp_s(joints.last()) >= 7.0, 10.0)
+        assert wait_for(lambda: stamp_s(joints.last()) >= 4.0, 60.0)
         msgs = joints.messages(n0)
     finally:
-        probe.set_parameters(NODE, real_time_factor=1.0)
         probe.unsubscribe(clock)
     node = {int(round(stamp_s(m) / DT)): np.array(list(m.position[:4]) + list(m.velocity[:4]))
             for m in msgs}
-    ks = sorted(k for k in node if k <= 7000)
-
-    # When the command took effect: the node runs the offline core with the same step, so its
-    # samples equal the command-free offline run bit for bit until the step the command acts on.
-    free = _offline()
+    ks = [k for k in range(4001) if k in node]
+    assert len(ks) == 4001, 'samples missing'
+    free = _offline(steps=4000)
     first_diff = next(k for k in ks if not np.array_equal(node[k], _state(free, k)))
-    last_same = max(k for k in ks if k < first_diff)
-    assert first_diff > 1500, 'diverged before the command was sent'
-    # causal (not before it was sent) and prompt (the next step after arrival: well within
-    # 1 s of simulation time, i.e. 0.25 s of wall time at real_time_factor 4)
-    assert last_same * DT >= t_sent - DT
-    latency = (first_diff - 1) * DT - t_sent
-    assert latency < 0.5, latency
-    # the command at that step, offline: the node's whole response, to the bit
-    for k_cmd in range(last_same, first_diff):
-        predicted = _offline(k_cmd)
-        if all(np.array_equal(node[k], _state(predicted, k)) for k in ks):
-            break
-    else:
-        raise AssertionError(f'no command step in [{last_same}, {first_diff}) reproduces the node')
-
-    def change(w4_by_k):
-        before = [w4_by_k[k] for k in ks if 1500 < k <= 2000]
-        after = [w4_by_k[k] for k in ks if 6000 < k <= 7000]
-        return np.mean(after) - np.mean(before)
-    node_change = change({k: node[k][7] for k in ks})
-    # the offline core's prediction for the step sent at t_sent (applied at the next step)
-    nominal = _offline(int(t_sent / DT) + 1)[:, COL['omega4']]
-    offline_change = change(dict(enumerate(nominal)))
-    assert offline_change > 25.0   # 0.04 → 0.06 m: the output speeds up by ~30 rad/s
-    # Tolerance: landing 100 ms later changes the predicted rise by 0.05 rad/s (0.15 %) offline,
-    # so 1 % covers the command latency asserted above (< 0.5 s of simulation time, < 0.75 %).
-    assert node_change == pytest.approx(offline_change, rel=0.01), (node_change, offline_change)
+    # causal: the command acts on a period that starts at or after the time seen when sending
+    assert (first_diff - 1) * DT >= t_seen - 1e-9, (first_diff, t_seen)
+    # the command at that period, offline: the node's whole response, to the bit
+    predicted = _offline(first_diff - 1, steps=4000)
+    assert all(np.array_equal(node[k], _state(predicted, k)) for k in ks)
+    # and it is the response of a crank step: 0.04 → 0.06 m speeds the output up
+    assert node[4000][7] > node[first_diff - 1][7] + 10.0
 
 
 def test_load_command_is_taken(device):

@@ -14,6 +14,7 @@ import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from node_harness import (
     BEST_EFFORT,
+    KEEP_ALL,
     LATCHED,
     NodeProcess,
     Probe,
@@ -54,7 +55,7 @@ def device():
     try:
         # a controller that is up before the node: subscribed before the node exists
         early = probe.subscribe(JointState, 'state', STATE_QOS)
-        joints = probe.subscribe(JointState, 'joint_states')
+        joints = probe.subscribe(JointState, 'joint_states', KEEP_ALL)
         diagnostics = probe.subscribe(DiagnosticArray, '/diagnostics')
         crank = probe.publisher(Float64, 'crank_length_cmd')
         load = probe.publisher(Float64, 'load_torque_cmd')
@@ -323,10 +324,12 @@ def test_bad_disturbance_files_and_joint_commands_are_refused_with_the_reason(de
             (text, device.proc.output()[-2000:])
 
 
-def test_every_command_is_applied_in_order_or_counted_as_lost(device):
-    """2000 crank commands published as fast as one process can, 1 period each (issue 14):
-    every command that reaches the node advances its own period, in order; every one that DDS
-    lost on the way is counted in /diagnostics."""
+def test_every_command_is_applied_in_order(device):
+    """2000 crank commands published as fast as one process can, 1 period each (issue 14),
+    from a publisher that keeps them all until delivered: every one advances its own period,
+    in order, none is lost or dropped. (A publisher with a shorter history than its backlog
+    loses commands on its own side; the node counts those from the sequence gaps,
+    commands_lost, docs/lockstep.md.)"""
     def counts():
         d = device.diagnostics.last()
         if d is None:
@@ -341,16 +344,15 @@ def test_every_command_is_applied_in_order_or_counted_as_lost(device):
     received0, lost0, _ = counts()
     try:
         values = [0.04 + 1e-5 * (k % 7) for k in range(2000)]
-        flooder = flood(device.domain, 'crank_length_cmd', 1e6, 2000 / 1e6, values)
+        flooder = flood(device.domain, 'crank_length_cmd', 1e6, 2000 / 1e6, values, keep_all=True)
         out, _ = flooder.communicate(timeout=60)
-        assert int(out.split()[0]) == 2000
-        # the node's own account closes: received + lost = sent
-        assert wait_for(lambda: sum(counts()[:2]) - received0 - lost0 == 2000, 30.0), counts()
+        assert int(out.split('\n')[-2].split()[0]) == 2000, out   # (DDS may log above it)
+        assert wait_for(lambda: counts()[0] - received0 == 2000, 30.0), counts()
         received = counts()[0] - received0
         wait_stamp(device, received * MS, timeout=60.0)
     finally:
         set_params(device, steps_per_command=0)
-    assert counts()[2] == 0
+    assert counts()[1:] == (lost0, 0)
     stamps = [stamp_ns(m) for m in device.joints.messages(n0)]
     assert stamps == [k * MS for k in range(received + 1)]
 
@@ -385,6 +387,10 @@ def test_pause_step_and_resume_in_realtime(device):
 def test_fast_mode_publishes_clock_and_sim_time_follows(device):
     probe = device.probe
     reset(device)
+    # fast mode publishes thousands of samples per second: a keep-all Python subscriber would
+    # take seconds to work through them (and hold up the probe's service calls) — listen to
+    # /clock only while it runs
+    probe.unsubscribe(device.joints)
     clock = probe.subscribe(Clock, '/clock', BEST_EFFORT)
     consumer = Node('sim_time_consumer', context=probe.context,
                     parameter_overrides=[Parameter('use_sim_time', value=True)])
@@ -402,6 +408,11 @@ def test_fast_mode_publishes_clock_and_sim_time_follows(device):
         probe.executor.remove_node(consumer)
         consumer.destroy_node()
         probe.unsubscribe(clock)
+        device.joints = probe.subscribe(JointState, 'joint_states', KEEP_ALL)
+        # matched on both sides (the node's writer learns of a new reader some ms after the
+        # reader sees the writer): a sample stepped now reaches it
+        assert wait_for(lambda: step(device) and wait_for(lambda: len(device.joints), 0.5),
+                        30.0)
     ticks = [m.clock.sec * 10**9 + m.clock.nanosec for m in clock.messages()]
     assert ticks == sorted(ticks)
     reset(device)

@@ -1,34 +1,43 @@
-"""Benchmark of the ROS node (not a test): publish-rate accuracy, loop jitter and missed deadlines
-at 1 kHz, and the top speed of fast mode. Prints a markdown table.
+"""Benchmark of the device (not a test): the throughput and timing targets of issue 10, measured
+in one run, with the machine's load. Prints markdown; ``--write`` puts it into BENCHMARKS.md
+(section "ROS node", the other sections are kept).
 
-    cvt-sim bench node [--seconds 10] [--scene conveyor]
+    cvt-sim bench node [--seconds 5] [--case inprocess lockstep fast realtime] [--write FILE]
 
-Each case starts ``cvt_node`` in its own process and ROS domain (discovery limited to this
-machine) and watches it from a subscriber in this process:
+Cases (each ``cvt_node`` in its own process and ROS domain, discovery limited to this machine):
 
-* the node's own figures come from /diagnostics: lateness of each sample against its deadline on
-  the monotonic clock (p50 / p99 over the last 4096 samples, worst window; max over the run),
-  missed deadlines (samples published a whole period or more late) and step time;
-* the subscriber's figures: samples received per wall second, simulation time per wall second,
-  and the arrival jitter of the samples (arrival − scheduled time, minus the smallest such delay:
-  what a controller in another process sees, including DDS and its own executor).
+* ``inprocess``: lockstep with the controller a Python callable, no DDS (the Device as the
+  controller kit's in-process back end drives it): a PI speed controller at 1 kHz commands the
+  crank every period; simulated s per wall s, and the cost of each piece of a period.
+* ``lockstep``: ``time_mode lockstep``, ``steps_per_command 1``, an rclpy PI controller in
+  another process (subscribes ``state``, publishes ``crank_length_cmd``: docs/lockstep.md) at a
+  1 ms and a 10 ms control period; simulated s per wall s of the round trips, CPU of both
+  processes. Two controllers: the docs' example as written (rclpy.spin, a default Node), and the
+  same law in a lean node (no parameter services, Fast DDS synchronous publication).
+* ``fast``: ``time_mode fast`` at 1 kHz and 100 Hz publishing, a subscriber to joint_states and
+  /clock in another process; simulated s per wall s and the node's CPU (share of one core).
+* ``realtime``: 1 kHz, 10 s (``--seconds`` × 2): share of periods published on time (less than
+  one period late: the node's own account, /diagnostics), share of samples a subscriber in
+  another process received (distinct stamps); idle and with two busy processes beside it.
 """
 import argparse
+import json
+import math
 import os
 import platform
 import subprocess
 import sys
 import time
-
-import numpy as np
+from pathlib import Path
 
 from ..device import domains
-from ..device.background_node import BackgroundNode
 
-FLOOD_RATE = 10_000
+SECTION = '## ROS node'
+PI_TARGET, PI_KP, PI_KI = 60.0, 2e-4, 2e-3    # rad/s, m per rad/s, m per rad (docs/lockstep.md)
 _LEASES = []
 
 
+# ------------------------------------------------------------------ processes
 def _domain():
     """A ROS domain of its own, held until this process ends (cvt_ros.device.domains)."""
     lease = domains.acquire()
@@ -36,15 +45,194 @@ def _domain():
     return lease.domain
 
 
-def _env(domain):
+def _env(domain, **extra):
     env = dict(os.environ)
-    env.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST')
+    env.update(ROS_DOMAIN_ID=str(domain), ROS_AUTOMATIC_DISCOVERY_RANGE='LOCALHOST',
+               PYTHONUNBUFFERED='1', **extra)
     env.setdefault('AMENT_PREFIX_PATH', sys.prefix)
     return env
 
 
-class _Watcher(BackgroundNode):
-    """Subscriber side: joint_states arrival times and stamps, diagnostics, /clock."""
+def _cpu_s(pid):
+    """CPU time [s] a process has used (user + system), from /proc."""
+    try:
+        fields = Path(f'/proc/{pid}/stat').read_text().rsplit(')', 1)[1].split()
+    except OSError:
+        return math.nan
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
+
+
+class Node:
+    """``cvt_node`` with ``parameters`` in its own process and domain."""
+
+    def __init__(self, parameters, scene='conveyor'):
+        self.domain = _domain()
+        cmd = [sys.executable, '-m', 'cvt_ros.device', '--scene', scene, '--ros-args']
+        for key, value in parameters.items():
+            cmd += ['-p', f'{key}:={value}']
+        self.proc = subprocess.Popen(cmd, env=_env(self.domain), stdout=subprocess.DEVNULL,
+                                     stderr=subprocess.DEVNULL)
+
+    def cpu(self):
+        return _cpu_s(self.proc.pid)
+
+    def close(self):
+        self.proc.send_signal(2)
+        try:
+            self.proc.wait(10)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+
+
+class Busy:
+    """``n`` CPU-bound processes (a loaded machine), started and stopped by PID."""
+
+    def __init__(self, n):
+        self.procs = [subprocess.Popen([sys.executable, '-c', 'while True: pass'])
+                      for _ in range(n)]
+
+    def close(self):
+        for p in self.procs:
+            p.kill()
+        for p in self.procs:
+            p.wait()
+
+
+# ------------------------------------------------------------------ in process
+def inprocess(seconds, fidelity='full'):
+    """Lockstep with a Python PI controller, no DDS: Device.command_crank_length +
+    Device.advance_row per period, as the controller kit's in-process back end does."""
+    from ..device.core import Device
+    from ..scene import load_scene
+    from ..solver import hybrid as H
+    from ..solver.output import COL
+
+    values = load_scene('conveyor', {'solver.method': 'rk4', 'model.fidelity': fidelity})
+    dt = 1e-3
+    w4 = COL['omega4']
+    device = Device(values, dt)
+    for _ in range(2000):           # past start-up, kernels loaded
+        device.advance_row()
+    device.reset()
+    n = int(seconds / dt)
+    row = device.present_state().row
+    integral = 0.0
+    t0 = time.perf_counter()
+    for _ in range(n):
+        error = PI_TARGET - row[w4]
+        integral += error * dt
+        device.command_crank_length(min(max(0.04 + PI_KP * error + PI_KI * integral, 0.0), 0.09))
+        row = device.advance_row()
+    wall = time.perf_counter() - t0
+    # the pieces of a period, each timed on its own over the same kind of run
+    sim, stepper = device.sim, device.stepper
+    pieces = {}
+    k = min(n, 5000)
+    t0 = time.perf_counter()
+    for i in range(k):
+        device.command_crank_length(0.04 + 1e-7 * (i % 9 + 1))
+    pieces['crank command (checked, profile planned, compiled)'] = (time.perf_counter() - t0) / k
+    t0 = time.perf_counter()
+    for _ in range(k):
+        stepper.advance()
+    pieces['period: one compiled advance-and-sample call'] = (time.perf_counter() - t0) / k
+    if fidelity != 'averaged':
+        args = (sim.y, sim.ms, sim.P, sim.ACT, sim.LIN, sim.S, sim.h_io, sim._empty_grid,
+                sim._empty_out, sim._events_buf, sim.counters, sim.ledger)
+        steps0, rhs0 = int(sim.counters[H.C_STEPS]), int(sim.counters[H.C_RHS])
+        t0 = time.perf_counter()
+        for _ in range(k):
+            sim.t = H.advance(sim.t, sim.t + dt, *args)
+            sim.counters[H.C_EVENTS] = 0
+        pieces['of which the core integration alone (hybrid.advance)'] = \
+            (time.perf_counter() - t0) / k
+        pieces['  (rk4 steps, right-hand sides per period)'] = (
+            (int(sim.counters[H.C_STEPS]) - steps0) / k, (int(sim.counters[H.C_RHS]) - rhs0) / k)
+    return {'periods': n, 'wall': wall, 'rtf': n * dt / wall, 'per_period': wall / n,
+            'pieces': pieces}
+
+
+# ------------------------------------------------------------------ lockstep over DDS
+def controller_main(argv):
+    """The controller process: an rclpy PI on ``state``, publishing ``crank_length_cmd``; prints
+    one JSON line with the periods, wall and CPU time from its first sample."""
+    periods, dt, lean = int(argv[0]), float(argv[1]), argv[2] == 'lean'
+    import rclpy
+    from rclpy.node import Node as RclNode
+    from rclpy.parameter import Parameter
+    from rclpy.qos import DurabilityPolicy, QoSProfile
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64
+
+    class Controller(RclNode):
+        def __init__(self):
+            if lean:   # no parameter or type-description services: a smaller wait set
+                super().__init__('bench_controller', start_parameter_services=False,
+                                 parameter_overrides=[
+                                     Parameter('start_type_description_service', value=False)])
+            else:
+                super().__init__('bench_controller')
+            self.integral = 0.0
+            self.count = 0
+            self.start = None
+            self.command_publisher = self.create_publisher(Float64, 'crank_length_cmd', 10)
+            latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+            self.state_subscription = self.create_subscription(
+                JointState, 'state', self.state_callback, latched)
+
+        def state_callback(self, msg):
+            if self.start is None:
+                self.start = (time.perf_counter(), time.process_time())
+            error = PI_TARGET - msg.velocity[3]
+            self.integral += error * dt
+            crank = min(max(0.04 + PI_KP * error + PI_KI * self.integral, 0.0), 0.09)
+            self.count += 1
+            if self.count > periods:
+                raise SystemExit
+            self.command_publisher.publish(Float64(data=crank))
+
+    rclpy.init()
+    node = Controller()
+    try:
+        rclpy.spin(node)
+    except SystemExit:
+        pass
+    wall, cpu = time.perf_counter() - node.start[0], time.process_time() - node.start[1]
+    print(json.dumps({'periods': periods, 'wall': wall, 'cpu': cpu}), flush=True)
+    node.destroy_node()
+    rclpy.try_shutdown()
+    return 0
+
+
+def lockstep(seconds, period, lean):
+    """Round trips node ↔ controller process for ``seconds`` of simulation (``period`` [s])."""
+    node = Node({'time_mode': 'lockstep', 'steps_per_command': 1,
+                 'publish_rate': 1.0 / period})
+    try:
+        env = _env(node.domain, **({'RMW_FASTRTPS_PUBLICATION_MODE': 'SYNCHRONOUS'} if lean
+                                   else {}))
+        periods = int(round(seconds / period))
+        cmd = [sys.executable, '-m', 'cvt_ros.bench.node', '--controller', str(periods),
+               repr(period), 'lean' if lean else 'docs']
+        cpu0 = node.cpu()
+        out = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)
+        node_cpu = node.cpu() - cpu0
+    finally:
+        node.close()
+    lines = [ln for ln in out.stdout.splitlines() if ln.startswith('{')]
+    if not lines:
+        raise RuntimeError(f"the controller gave no result: {out.stderr[-500:]}")
+    r = json.loads(lines[-1])
+    r.update(rtf=r['periods'] * period / r['wall'], round_trip=r['wall'] / r['periods'],
+             node_cpu=node_cpu / r['wall'], controller_cpu=r['cpu'] / r['wall'])
+    return r
+
+
+# ------------------------------------------------------------------ free-running modes
+class Watcher:
+    """A subscriber in this process (another process than the node's): joint_states stamps,
+    /clock, /diagnostics."""
 
     def __init__(self, domain):
         from diagnostic_msgs.msg import DiagnosticArray
@@ -52,213 +240,220 @@ class _Watcher(BackgroundNode):
         from rosgraph_msgs.msg import Clock
         from sensor_msgs.msg import JointState
 
-        super().__init__('cvt_bench_watcher', domain)
-        self.arrivals = []      # (monotonic ns, stamp ns)
-        self.diagnostics = []   # (monotonic ns, {key: value})
+        from ..device.background_node import BackgroundNode
+        self.bg = BackgroundNode('cvt_bench_watcher', domain)
+        self.stamps = []
         self.clock = None
+        self.diagnostics = []
         self.recording = False
-        self.node.create_subscription(JointState, 'joint_states', self._on_joint_states,
-                                      QoSProfile(depth=1000))
-        self.node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics,
-                                      QoSProfile(depth=10))
-        self.node.create_subscription(
-            Clock, '/clock', self._on_clock,
-            QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
-        self.start()
+        node = self.bg.node
+        node.create_subscription(JointState, 'joint_states', self._on_sample,
+                                 QoSProfile(depth=1000))
+        node.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics,
+                                 QoSProfile(depth=10))
+        node.create_subscription(Clock, '/clock', self._on_clock,
+                                 QoSProfile(depth=1, reliability=ReliabilityPolicy.BEST_EFFORT))
+        self.bg.start()
 
-    def _on_joint_states(self, msg):
-        now = time.monotonic_ns()
+    def _on_sample(self, msg):
         if self.recording:
-            with self.lock:
-                self.arrivals.append(
-                    (now, msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec))
-        self.seen = True
-
-    def _on_diagnostics(self, msg):
-        values = {kv.key: kv.value for kv in msg.status[0].values}
-        with self.lock:
-            self.diagnostics.append((time.monotonic_ns(), values))
+            self.stamps.append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
 
     def _on_clock(self, msg):
-        self.clock = (time.monotonic_ns(), msg.clock.sec + msg.clock.nanosec * 1e-9)
+        self.clock = (time.monotonic(), msg.clock.sec + msg.clock.nanosec * 1e-9)
 
-    def wait_diagnostics(self, count, timeout):
+    def _on_diagnostics(self, msg):
+        self.diagnostics.append({kv.key: kv.value for kv in msg.status[0].values})
+
+    def wait_diagnostics(self, timeout=120.0):
+        """The next /diagnostics report's values."""
+        n = len(self.diagnostics)
         end = time.monotonic() + timeout
-        n0 = len(self.diagnostics)
-        while len(self.diagnostics) < n0 + count:
+        while len(self.diagnostics) <= n:
             if time.monotonic() > end:
-                raise TimeoutError('no diagnostics from the node')
+                raise TimeoutError('no /diagnostics from the node')
             time.sleep(0.01)
-        return self.diagnostics[-1][1]
+        return self.diagnostics[-1]
+
+    def close(self):
+        self.bg.close()
 
 
-def _agg(fn, values):
-    """``fn`` over the finite values (nan when there are none, e.g. jitter in fast mode)."""
-    finite = [v for v in values if np.isfinite(v)]
-    return float(fn(finite)) if finite else float('nan')
-
-
-def _float(values, key):
+def fast(seconds, rate):
+    """Fast mode with ``rate`` Hz publishing: simulated s per wall s, node CPU."""
+    node = Node({'time_mode': 'fast', 'publish_rate': float(rate)})
+    watcher = Watcher(node.domain)
     try:
-        return float(values[key])
-    except (KeyError, ValueError):
-        return float('nan')
-
-
-def run_case(name, parameters, seconds, scene, flood=False, warmup=2.0):
-    """One node run; returns a dict of figures."""
-    domain = _domain()
-    cmd = [sys.executable, '-m', 'cvt_ros.device', '--scene', scene, '--ros-args']
-    for key, value in parameters.items():
-        cmd += ['-p', f'{key}:={value}']
-    node = subprocess.Popen(cmd, env=_env(domain), stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)
-    watcher = _Watcher(domain)
-    flooder = None
-    try:
-        watcher.wait_diagnostics(1, 60.0)
-        time.sleep(warmup)   # past start-up (discovery, first allocations)
-        if flood:
-            flooder = subprocess.Popen(
-                [sys.executable, '-m', 'cvt_ros.bench.node', '--flood', str(seconds + 2)],
-                env=_env(domain), stdout=subprocess.DEVNULL)
-            time.sleep(1.0)
-        start = watcher.wait_diagnostics(1, 5.0)
-        n_diag = len(watcher.diagnostics)
-        clock0 = watcher.clock
+        watcher.wait_diagnostics()
+        time.sleep(1.0)
+        clock0, cpu0 = watcher.clock, node.cpu()
         watcher.recording = True
         time.sleep(seconds)
         watcher.recording = False
-        clock1 = watcher.clock
-        end = watcher.wait_diagnostics(1, 5.0)
-        windows = [v for _, v in watcher.diagnostics[n_diag:]]
+        clock1, cpu1 = watcher.clock, node.cpu()
     finally:
-        if flooder is not None:
-            flooder.wait(seconds + 30)
         watcher.close()
-        node.send_signal(2)
-        try:
-            node.wait(10)
-        except subprocess.TimeoutExpired:
-            node.kill()
-    arrivals = np.array(watcher.arrivals, dtype=np.int64)
-    out = {'case': name, 'seconds': seconds}
-    missed = int(_float(end, 'missed_deadlines') - _float(start, 'missed_deadlines'))
-    samples = int(_float(end, 'samples_published') - _float(start, 'samples_published'))
-    out['missed'] = missed
-    out['samples'] = samples
-    out['node_p50'] = _agg(np.median, [_float(w, 'jitter_p50_us') for w in windows])
-    out['node_p99'] = _agg(np.max, [_float(w, 'jitter_p99_us') for w in windows])
-    out['node_max'] = _agg(np.max, [_float(w, 'jitter_max_us') for w in windows])
-    out['step_p50'] = _agg(np.median, [_float(w, 'step_time_p50_us') for w in windows])
-    out['step_p99'] = _agg(np.max, [_float(w, 'step_time_p99_us') for w in windows])
-    out['refused'] = int(_float(end, 'commands_refused') - _float(start, 'commands_refused'))
-    out['received'] = int(_float(end, 'commands_received') - _float(start, 'commands_received'))
-    if clock0 and clock1 and clock1[0] > clock0[0]:
-        out['rtf'] = (clock1[1] - clock0[1]) / ((clock1[0] - clock0[0]) * 1e-9)
-    else:
-        out['rtf'] = float('nan')
-    if len(arrivals) > 2:
-        wall = (arrivals[-1, 0] - arrivals[0, 0]) * 1e-9
-        out['rate'] = (len(arrivals) - 1) / wall
-        rtf = parameters.get('real_time_factor', 1.0)
-        delay = arrivals[:, 0] - arrivals[:, 1] / rtf   # arrival − scheduled, up to a constant
-        delay = (delay - delay.min()) / 1e3
-        out['sub_p50'], out['sub_p99'] = np.percentile(delay, [50, 99])
-        out['sub_max'] = float(delay.max())
-        out['gaps'] = int(np.sum(np.diff(arrivals[:, 1]) != np.median(np.diff(arrivals[:, 1]))))
-    return out
+        node.close()
+    wall = clock1[0] - clock0[0]
+    return {'rtf': (clock1[1] - clock0[1]) / wall, 'node_cpu': (cpu1 - cpu0) / wall,
+            'received': len(watcher.stamps) / wall}
 
 
-def _flood_main(seconds):
-    """A command flood from its own process: FLOOD_RATE crank-length commands per second,
-    every third one invalid (NaN)."""
-    import rclpy
-    from rclpy.node import Node
-    from std_msgs.msg import Float64
-    rclpy.init()
-    node = Node('cvt_bench_flood')
-    pub = node.create_publisher(Float64, 'crank_length_cmd', 10)
-    end = time.monotonic() + 10
-    while pub.get_subscription_count() == 0 and time.monotonic() < end:
-        time.sleep(0.01)
-    cycle = [Float64(data=0.04), Float64(data=0.041), Float64(data=float('nan'))]
-    period = 1e9 / FLOOD_RATE
-    t0 = time.monotonic_ns()
-    for i in range(int(FLOOD_RATE * seconds)):
-        ahead = t0 + i * period - time.monotonic_ns()
-        if ahead > 500_000:
-            time.sleep(ahead * 1e-9)
-        pub.publish(cycle[i % 3])
-    node.destroy_node()
-    rclpy.try_shutdown()
+def realtime(seconds, busy=0):
+    """Realtime 1 kHz: periods on time (node's account), samples a subscriber received."""
+    load = Busy(busy) if busy else None
+    node = Node({})
+    watcher = Watcher(node.domain)
+    try:
+        watcher.wait_diagnostics()
+        time.sleep(1.0)
+        before = watcher.wait_diagnostics()
+        watcher.recording = True
+        time.sleep(seconds)
+        after = watcher.wait_diagnostics()
+        time.sleep(0.5)   # the last samples in flight
+        watcher.recording = False
+    finally:
+        watcher.close()
+        node.close()
+        if load is not None:
+            load.close()
+    stamps = sorted(set(watcher.stamps))
+    published = int(after['samples_published']) - int(before['samples_published'])
+    missed = int(after['missed_deadlines']) - int(before['missed_deadlines'])
+    # the subscriber's share over the stretch it listened: distinct stamps / periods spanned
+    spanned = (stamps[-1] - stamps[0]) // 1_000_000 + 1 if stamps else 0
+    return {'published': published, 'missed': missed,
+            'on_time': 1.0 - missed / published if published else math.nan,
+            'received': len(stamps) / spanned if spanned else 0.0,
+            'resyncs': int(after['resyncs']) - int(before['resyncs']),
+            'jitter_p99_us': float(after['jitter_p99_us'])}
+
+
+# ------------------------------------------------------------------ report
+def _pct(x):
+    return '–' if x is None or not math.isfinite(x) else f"{100 * x:.2f} %"
 
 
 def _machine():
     model = ''
     try:
-        with open('/proc/cpuinfo') as f:
-            model = next((line.split(':', 1)[1].strip() for line in f
-                          if line.startswith('model name')), '')
+        model = next((ln.split(':', 1)[1].strip() for ln in
+                      Path('/proc/cpuinfo').read_text().splitlines()
+                      if ln.startswith('model name')), '')
     except OSError:
         pass
-    load = os.getloadavg()[0] if hasattr(os, 'getloadavg') else float('nan')
-    return (f"{os.cpu_count()} CPUs ({model or platform.machine()}), Python "
-            f"{platform.python_version()}, load average {load:.2f} at the start")
+    return f"{os.cpu_count()} CPUs ({model or platform.machine()}), Python " \
+           f"{platform.python_version()}"
 
 
-def _fmt(value, digits=0):
-    if value is None or (isinstance(value, float) and not np.isfinite(value)):
-        return '–'
-    return f"{value:.{digits}f}"
+def _load():
+    return ' / '.join(f"{x:.2f}" for x in os.getloadavg())
+
+
+def run(options, out):
+    cases = options.case
+    s = options.seconds
+    out(f"Command: `{options.command}`. Machine: {_machine()}; load average (1/5/15 min) "
+        f"{_load()} at the start. Scene conveyor, solver rk4, control period 1 ms unless "
+        f"said.\n")
+    if 'inprocess' in cases:
+        out('### In-process lockstep (controller = Python callable, no DDS; target ≥ 200×)\n')
+        out('| model.fidelity | simulated s / wall s | µs per period |')
+        out('|---|---|---|')
+        details = {}
+        for fidelity in ('full', 'rigid_shaft', 'averaged'):
+            r = inprocess(max(s, 2.0), fidelity)
+            details[fidelity] = r['pieces']
+            out(f"| {fidelity} | {r['rtf']:.0f}× | {r['per_period'] * 1e6:.1f} |")
+        out('\nCost of the pieces of a period (full model, µs):\n')
+        out('| piece | µs |')
+        out('|---|---|')
+        for name, value in details['full'].items():
+            text = (f"{value[0]:.2f} steps, {value[1]:.1f} evaluations"
+                    if isinstance(value, tuple) else f"{value * 1e6:.2f}")
+            out(f"| {name} | {text} |")
+        out('')
+    if 'lockstep' in cases:
+        out('### Lockstep over DDS, controller in another process (target ≥ 3× at 1 ms, '
+            '≥ 25× at 10 ms)\n')
+        out('| control period | controller | simulated s / wall s | round trip [µs] | '
+            'node CPU | controller CPU |')
+        out('|---|---|---|---|---|---|')
+        for period in (1e-3, 1e-2):
+            for lean in (False, True):
+                r = lockstep(max(s, 2.0) * (1 if period < 5e-3 else 5), period, lean)
+                who = ('lean rclpy node, synchronous publication' if lean
+                       else 'docs/lockstep.md example (rclpy.spin)')
+                out(f"| {period * 1e3:g} ms | {who} | {r['rtf']:.2f}× | "
+                    f"{r['round_trip'] * 1e6:.0f} | {_pct(r['node_cpu'])} | "
+                    f"{_pct(r['controller_cpu'])} |")
+        out('')
+    if 'fast' in cases:
+        out('### Fast mode (target ≥ 90 % of a core; ≥ 5× at 1 kHz publishing, ≥ 50× at '
+            '100 Hz)\n')
+        out('| publish_rate | simulated s / wall s | node CPU (one core = 100 %) | '
+            'samples/s a subscriber received |')
+        out('|---|---|---|---|')
+        for rate in (1000, 100):
+            r = fast(s, rate)
+            out(f"| {rate} Hz | {r['rtf']:.1f}× | {_pct(r['node_cpu'])} | "
+                f"{r['received']:.0f} |")
+        out('')
+    if 'realtime' in cases:
+        out('### Realtime 1 kHz (targets idle: ≥ 99.9 % on time, ≥ 99 % received)\n')
+        out('| machine | periods on time | samples received (another process) | missed / '
+            'published | resyncs | node lateness p99 [µs] |')
+        out('|---|---|---|---|---|---|')
+        for busy in (0, 2):
+            r = realtime(2 * s, busy)
+            who = 'as it is' if not busy else '+ two busy processes'
+            out(f"| {who} (load {_load().split(' / ')[0]}) | {_pct(r['on_time'])} | "
+                f"{_pct(r['received'])} | {r['missed']} / {r['published']} | {r['resyncs']} | "
+                f"{r['jitter_p99_us']:.0f} |")
+        out('')
+    out(f"Load average at the end: {_load()}.\n")
+
+
+def write_section(path, text):
+    """Replace the section SECTION of the markdown file ``path`` (append it if absent)."""
+    from .report import _blocks
+    path = Path(path)
+    blocks = _blocks(path.read_text()) if path.exists() else []
+    body = f"{SECTION}\n\n{text.strip()}\n\n"
+    if any(head == SECTION for head, _ in blocks):
+        parts = [body if head == SECTION else b for head, b in blocks]
+    else:
+        parts = [b for _, b in blocks] + ['\n' + body]
+    path.write_text(''.join(parts))
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser(prog='cvt-sim bench node',
                                      description=__doc__.split('\n\n')[0])
-    parser.add_argument('--seconds', type=float, default=10.0, help='measured window per case')
-    parser.add_argument('--scene', default='conveyor')
-    parser.add_argument('--case', action='append', choices=('fifo', 'normal', 'flood', 'fast'),
-                        help='run only these cases (repeatable; default: all)')
-    parser.add_argument('--flood', type=float, default=None, help=argparse.SUPPRESS)
+    parser.add_argument('--seconds', type=float, default=5.0,
+                        help='simulated seconds (in-process, lockstep) or wall seconds (fast, '
+                             'realtime: twice this) per case (default 5)')
+    parser.add_argument('--case', nargs='+', default=['inprocess', 'lockstep', 'fast',
+                                                      'realtime'],
+                        choices=('inprocess', 'lockstep', 'fast', 'realtime'))
+    parser.add_argument('--write', metavar='FILE', help='put the tables into FILE (section '
+                        f'"{SECTION[3:]}"), e.g. BENCHMARKS.md')
+    parser.add_argument('--controller', nargs=3, help=argparse.SUPPRESS)
     options = parser.parse_args(argv)
-    if options.flood is not None:
-        _flood_main(options.flood)
-        return 0
-    s = options.seconds
-    print(f"Machine: {_machine()}. Scene: {options.scene}. Measured window: {s:g} s per case.\n")
-    cases = set(options.case or ('fifo', 'normal', 'flood', 'fast'))
-    realtime = [
-        ('fifo', 'realtime 1 kHz, SCHED_FIFO 50 (default)', {}, False),
-        ('normal', 'realtime 1 kHz, normal scheduling', {'realtime_priority': 0}, False),
-        ('flood', f'realtime 1 kHz + {FLOOD_RATE} cmd/s flood', {}, True),
-    ]
-    print('| case | samples/s received (target 1000) | sim s / wall s | node lateness '
-          'p50 / p99 / max [µs] | missed deadlines | step time p50 / p99 [µs] | subscriber '
-          'arrival jitter p50 / p99 / max [µs] | commands taken / refused |')
-    print('|---|---|---|---|---|---|---|---|')
-    for key, name, params, flood in realtime:
-        if key not in cases:
-            continue
-        r = run_case(name, params, s, options.scene, flood=flood)
-        cmds = f"{r['received']} / {r['refused']}" if flood else '–'
-        print(f"| {name} | {_fmt(r.get('rate'), 1)} | {_fmt(r['rtf'], 4)} | "
-              f"{_fmt(r['node_p50'], 1)} / {_fmt(r['node_p99'], 1)} / {_fmt(r['node_max'])} | "
-              f"{r['missed']} of {r['samples']} | {_fmt(r['step_p50'], 1)} / "
-              f"{_fmt(r['step_p99'], 1)} | {_fmt(r.get('sub_p50'))} / {_fmt(r.get('sub_p99'))} "
-              f"/ {_fmt(r.get('sub_max'))} | {cmds} |", flush=True)
-    if 'fast' not in cases:
-        return 0
-    print('\n| fast mode, publish_rate | s of simulation per wall s | samples/s published | '
-          'step time p50 / p99 [µs] |')
-    print('|---|---|---|---|')
-    for rate in (1000, 100):
-        r = run_case('fast', {'time_mode': 'fast', 'publish_rate': float(rate)}, s,
-                     options.scene)
-        wall = r['samples'] / r['rtf'] / rate if r['rtf'] > 0 else float('nan')
-        print(f"| {rate} Hz (joint_states and /clock every {1000 / rate:g} ms of simulation) | "
-              f"{_fmt(r['rtf'], 1)} | {_fmt(r['samples'] / wall if wall > 0 else None)} | "
-              f"{_fmt(r['step_p50'], 1)} / {_fmt(r['step_p99'], 1)} |", flush=True)
+    if options.controller:
+        return controller_main(options.controller)
+    options.command = './run.sh bench node ' + ' '.join(argv if argv is not None
+                                                         else sys.argv[1:])
+    lines = []
+
+    def out(text):
+        print(text, flush=True)
+        lines.append(text)
+    run(options, out)
+    if options.write:
+        write_section(options.write, '\n'.join(lines))
+        print(f"written to {options.write} (section {SECTION[3:]!r})", file=sys.stderr)
     return 0
 
 

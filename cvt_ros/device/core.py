@@ -26,6 +26,7 @@ from ..physics.drives import crank_actuator
 from ..physics.linkage import GrashofError, check_crank_lengths_fit, grashof_bound
 from ..solver.fidelity import make_simulator
 from ..solver.output import COL
+from ..solver.period import PeriodStepper
 from ..solver.simulator import SimulationError
 from .disturbance import DisturbanceError, load_disturbance
 
@@ -36,6 +37,7 @@ DISTURBANCE = 'disturbance.file'
 #: the physics and the disturbance schedule.
 PERIOD_NAMES = PHYSICS_NAMES | {DISTURBANCE}
 RING_SIZE = 4096   # step times kept for percentiles
+NO_EVENTS = ()     # a period without clutch switches (most of them)
 
 
 class CommandError(ValueError):
@@ -133,18 +135,38 @@ class Device:
     or ``scene.load_scene``; the node's own parameters may be among them, the limit
     ``limits.load_torque`` is taken from them; ``disturbance.file`` names a load schedule,
     ``device/disturbance.py``). ``control_period`` [s]: simulation time per ``advance()``.
-    Raises ParameterError / GrashofError for values the physics cannot take."""
+    ``timing``: keep each period's compute time in ``step_ns`` (the node's diagnostics).
+    Raises ParameterError / GrashofError for values the physics cannot take.
 
-    def __init__(self, values, control_period=1e-3):
+    A period is one compiled call (``solver.period.PeriodStepper``): ``advance()`` returns a
+    Period of its own; ``advance_row()`` — the fast path, no Python object per period — returns
+    the stepper's row buffer, rewritten by the next period."""
+
+    def __init__(self, values, control_period=1e-3, timing=False):
         if not (control_period > 0.0 and math.isfinite(control_period)):
             raise ValueError(f"control period must be a positive finite time, got "
                              f"{control_period!r}")
         self.values = dict(values)
-        self.dt = float(control_period)
+        self._bound = grashof_bound(*geometry(self.values))
+        self._dt = float(control_period)
+        self.timing = timing
         self.step_ns = Ring()
-        self.sim = None
+        self.sim = self.stepper = None
+        self.events = NO_EVENTS   # clutch switches inside the last period (grazes left out)
+        self.crank_rate = 0.0     # the actuator's rate at the end of the last period [m/s]
         self.disturbance = disturbance_schedule(self.values)
         self.reset()
+
+    @property
+    def dt(self):
+        """The control period [s] (simulation time per advance)."""
+        return self._dt
+
+    @dt.setter
+    def dt(self, value):
+        self._dt = float(value)
+        if self.stepper is not None:
+            self.stepper.dt = self._dt
 
     # ------------------------------------------------------------------ state
     def reset(self):
@@ -164,6 +186,7 @@ class Device:
         except (ParameterError, GrashofError, SimulationError) as exc:
             self.fault = f"reset failed: {exc}"
             raise
+        self.stepper = PeriodStepper(self.sim, self.dt)
 
     @property
     def t(self):
@@ -172,7 +195,7 @@ class Device:
     @property
     def bound(self):
         """Grashof bound of the present geometry [m] (crank lengths must stay below it)."""
-        return grashof_bound(*geometry(self.values))
+        return self._bound
 
     @property
     def load_limit(self):
@@ -221,7 +244,7 @@ class Device:
         self.check_crank_length(a)
         if a == self.sim.crank_length_target:
             return
-        self.sim.command_crank_length(a)
+        self.stepper.command_crank_length(a)   # = Simulator.command_crank_length, compiled
         self.crank_target = a
 
     def command_load_torque(self, m):
@@ -253,40 +276,54 @@ class Device:
             self._next_disturbance = 0
         if physics:
             self.sim.update_parameters(physics)
+            self.stepper.refresh()
             if 'linkage.crank_length' in physics:
                 self.crank_target = new['linkage.crank_length']
             if 'load.torque' in physics:
                 self.load_command = new['load.torque']
         self.values = new
+        self._bound = grashof_bound(*geometry(new))
 
     def set_values(self, new):
         """Take already validated values (the node checked them) without touching the physics
         (the node queues physics changes for its loop: ``update_parameters``)."""
         self.values = dict(new)
+        self._bound = grashof_bound(*geometry(self.values))
 
     # ------------------------------------------------------------------ time
     def advance(self):
-        """Advance one control period; the Period, or None (and ``fault`` set) if the
-        integration failed. A held fault advances nothing until reset()."""
+        """Advance one control period; the Period (its own row), or None (and ``fault`` set)
+        if the integration failed. A held fault advances nothing until reset()."""
+        t0 = self.sim.t
+        row = self.advance_row()
+        if row is None:
+            return None
+        return Period(t0, self.sim.t, list(self.events), row.copy(), self.crank_rate)
+
+    def advance_row(self):
+        """Advance one control period, the fast path: the sample row at its end — a buffer
+        the next period rewrites (copy what you keep) — or None (and ``fault`` set) if the
+        integration failed; ``events``, ``crank_rate`` describe the period."""
         if self.fault:
             return None
-        if self.dt != self._grid_dt:   # a new control period: its grid starts here
-            self._grid_t0, self._grid_k, self._grid_dt = self.sim.t, 0, self.dt
+        if self._dt != self._grid_dt:   # a new control period: its grid starts here
+            self._grid_t0, self._grid_k, self._grid_dt = self.sim.t, 0, self._dt
         if self.disturbance is not None:
             self._apply_disturbance()
         self._grid_k += 1
-        sim = self.sim
-        t0 = sim.t
-        c0 = time.perf_counter_ns()
+        stepper = self.stepper
+        c0 = time.perf_counter_ns() if self.timing else 0
         try:
-            switches = sim.advance(self.dt)
+            row = stepper.advance()
         except (SimulationError, ValueError) as exc:
             self.fault = str(exc)
             return None
-        row = sim.sample()
-        self.step_ns.add(time.perf_counter_ns() - c0)
-        events = [s for s in switches if s.kind != 'graze']
-        return Period(t0, sim.t, events, row, crank_actuator(sim.t, sim.ACT)[1])
+        if self.timing:
+            self.step_ns.add(time.perf_counter_ns() - c0)
+        switches = stepper.switches
+        self.events = [s for s in switches if s.kind != 'graze'] if switches else NO_EVENTS
+        self.crank_rate = stepper.crank_rate
+        return row
 
     def _apply_disturbance(self):
         """Rows of the schedule due at this period's start t_k (t <= t_k): the last one wins."""

@@ -1,6 +1,6 @@
-"""The run loop: one thread that owns the Device, applies what was queued, advances and publishes,
-in one of three time modes. Plain Python: the node drives it through a small port (publish a
-period, a switch, the present state; take commands), and tests drive it with a port of their own.
+"""The run loop: one thread that owns the Device, takes the commands, advances and publishes, in
+one of three time modes. Plain Python: the node drives it through a small port (publish a sample,
+a switch, the present state; wait for commands), and tests may drive it with a port of their own.
 
 * ``realtime``: the period ending at simulation time t is published at wall time
   anchor + (t − anchor_sim)/real_time_factor on the monotonic clock; the next period is computed
@@ -11,10 +11,13 @@ period, a switch, the present state; take commands), and tests drive it with a p
 * ``lockstep``: the simulation advances only on ``~/step`` (``step_periods`` each) or by
   ``steps_per_command`` per crank-length command; load commands never advance time.
 
-Callers on other threads (the executor) check and ``request()``; the loop thread applies the
-requests at the start of the next physics step, in arrival order. While the simulation is held
-(lockstep, paused) the executor thread advances it itself (``lockstep_command``, ``step``): one
-wake-up per period, no hand-over between threads; ``lock`` keeps the two threads apart.
+The loop thread takes every command message itself (``port.wait_commands``: an rcl wait set on
+the command subscriptions, not the executor): while the simulation runs free it polls them at the
+start of each period; while it is held (lockstep, paused, a fault) it blocks on them, so in
+lockstep one command message is one wake-up of this thread, which applies it, advances and
+publishes — no hand-over between threads, no executor pass. Services and parameter changes come
+from the executor thread as queued requests (applied at the next period boundary, in arrival
+order, ``wake()`` interrupts a wait); ``~/step`` advances from the executor thread under ``lock``.
 """
 import collections
 import ctypes
@@ -32,14 +35,12 @@ from .diagnostics import Stats
 
 SPIN_NS = 100_000              # busy-wait the last 100 µs before a deadline (sleep overshoots)
 MAX_SLEEP_S = 0.05             # longest single sleep: stop / pause are seen within this
-IDLE_WAIT_S = 0.1              # lockstep / paused: wait for work this long at a time
+IDLE_WAIT_S = 0.1              # lockstep / paused: wait for a command this long at a time
 LAG_LIMIT_NS = 500_000_000     # behind by more than this: give up the backlog, re-anchor
 STATS_PERIOD_NS = 250_000_000  # energy balance / snapshot for diagnostics this often
 WARN_PERIOD_S = 1.0            # throttled warnings: at most one per topic per second
 SERVICE_TIMEOUT_S = 5.0        # a service waits this long for the loop to act
-QUEUE_LIMIT = 100_000          # queued requests; beyond this commands are dropped (and counted)
 FAST_BATCH = 20                # fast mode: control periods per pass of the loop (less overhead)
-COMMANDS = ('crank', 'load', 'noop')
 #: What realtime mode does when it cannot keep up (reported in /diagnostics, docs/node.md).
 REALTIME_POLICY = ('catch up: late samples go out back to back with their own stamps; more than '
                    '0.5 s behind: re-anchor, simulation time slips (resyncs, slipped_s)')
@@ -86,14 +87,16 @@ class Waiter:
 
 
 class RunLoop:
-    """The loop thread around a Device. ``port``: what the loop publishes through —
-    ``publish_period(period)`` (its switches from ``next_event`` on, then its sample),
+    """The loop thread around a Device. ``port``: what the loop talks through —
+    ``publish_sample(row, crank_rate)`` (one period's sample row and the actuator's rate),
     ``publish_switch(event)``, ``publish_present(period)`` (latched clutch state and sample),
-    ``take_commands()`` (free-running modes: hand arrived commands to their callbacks),
-    ``commands_to_loop(flag)`` (the loop takes commands itself while running free),
-    ``recording_reset()``, ``ok()`` (the ROS context is up). ``logger``: warning / error / info.
+    ``wait_commands(timeout_s)`` (wait up to
+    ``timeout_s`` for command messages or ``wake()``; hand each to its callback, which calls
+    ``command``), ``wake()``, ``recording_reset()``, ``ok()`` (the ROS context is up).
+    ``logger``: warning / error / info.
 
-    ``settings``: time_mode, real_time_factor, steps_per_command, realtime_priority.
+    ``settings``: time_mode, real_time_factor, steps_per_command, step_periods,
+    realtime_priority.
     """
 
     def __init__(self, device, port, logger, settings):
@@ -104,7 +107,7 @@ class RunLoop:
         self.rtf = settings['real_time_factor']
         self.steps_per_command = int(settings['steps_per_command'])
         self.step_periods = int(settings.get('step_periods', 1))
-        self.lock = threading.Lock()   # held while a thread works on the device
+        self.lock = threading.RLock()   # held while a thread works on the device
         self.priority = int(settings['realtime_priority'])
         self.stats = Stats()
         self.snapshot = {}
@@ -117,10 +120,9 @@ class RunLoop:
         self._anchor_wall_ns = 0
         self._anchor_sim = 0.0
         self._snapshot_ns = 0
-        self._takes = False
         self._queue = collections.deque()
         self._queue_lock = threading.Lock()
-        self.wake = threading.Event()
+        self.wake_event = threading.Event()
         self.stopping = threading.Event()
         self._throttles = collections.defaultdict(Throttle)
         self._thread = threading.Thread(target=self._run, name='cvt_sim_loop', daemon=True)
@@ -133,7 +135,7 @@ class RunLoop:
     def stop(self, timeout=1.5):
         """Stop the loop thread; True if it ended within ``timeout`` [s]."""
         self.stopping.set()
-        self.wake.set()
+        self.wake()
         if self._thread.is_alive():
             self._thread.join(timeout)
         return not self._thread.is_alive()
@@ -141,6 +143,11 @@ class RunLoop:
     @property
     def alive(self):
         return self._thread.is_alive()
+
+    def wake(self):
+        """Interrupt the loop's wait (a request, a new setting, stop)."""
+        self.wake_event.set()
+        self.port.wake()
 
     def retime(self, mode=None, rtf=None, priority=None):
         """A timing setting changed (executor thread): take it at the next pass."""
@@ -152,78 +159,68 @@ class RunLoop:
             self.priority = priority
         self._resync = True
         self._demoted = False
-        self.wake.set()
+        self.wake()
 
-    # ------------------------------------------------------------------ requests
+    # ------------------------------------------------------------------ commands
     def grant(self, kind='crank'):
         """Control periods a command message advances now: a crank-length command in lockstep
         with steps_per_command; a load (disturbance) command never advances time."""
         return self.steps_per_command if self.mode == 'lockstep' and kind != 'load' else 0
 
     def held(self):
-        """The simulation is held (lockstep or paused): the executor may advance it."""
+        """The simulation is held (lockstep or paused): commands and ~/step advance it."""
         return self.mode == 'lockstep' or self.paused
 
-    def lockstep_command(self, kind, value, grant):
-        """Executor thread, held simulation: apply what was queued, then this command (None:
-        a refused one, the last valid command stays), then advance ``grant`` periods."""
+    def command(self, kind, value, grant):
+        """A command message (loop thread, from ``port.wait_commands``): apply it (``kind``
+        None: a refused one, the last valid command stays) from the next period on, then, held
+        in lockstep, advance ``grant`` periods now."""
         with self.lock:
-            self._drain()
-            if kind is not None:
-                self._apply((kind, value, grant))
-            if self.paused:
-                return   # ~/pause suspends steps_per_command: applied, not stepped
-            self._advance_periods(grant)
+            if grant and self.held():
+                self._drain()   # what the executor queued before it, first
+            if kind == 'crank':
+                self._command(self.device.command_crank_length, 'crank_length_cmd', value)
+            elif kind == 'load':
+                self._command(self.device.command_load_torque, 'load_torque_cmd', value)
+            if grant and self.mode == 'lockstep' and not self.paused:
+                self._advance_periods(grant)   # (~/pause suspends steps_per_command)
+
+    def _command(self, apply, topic, value):
+        try:
+            apply(value)
+        except CommandError as exc:   # the geometry changed after the command was checked
+            self.logger.warning(f"{topic} dropped: {exc}")
 
     def step(self, n):
         """~/step while held (executor thread): advance ``n`` periods now; (success, text)."""
         with self.lock:
             self._drain()
-            if self.device.fault:
-                return False, f"simulation fault: {self.device.fault}; call ~/reset"
-            if not self._advance_periods(n):
+            if self.device.fault or not self._advance_periods(n):
                 return False, f"simulation fault: {self.device.fault}; call ~/reset"
             return True, self.device.state_text()
 
     def _advance_periods(self, n):
+        """Held: advance and publish ``n`` periods (the caller holds the lock)."""
+        device, port, stats = self.device, self.port, self.stats
         for _ in range(n):
-            if self.device.fault or self.stopping.is_set():
+            if device.fault or self.stopping.is_set():
                 return False
-            period = self._advance()
-            if period is None:
+            row = device.advance_row()
+            if row is None:
+                self._report_fault()
                 return False
-            self._publish(period)
+            self._publish_events(device.events)
+            port.publish_sample(row, device.crank_rate)
+            stats.samples += 1
+        self.last_row = device.stepper.row
         return True
 
-    def _drain(self):
-        """Apply everything queued, in order (the caller holds the lock)."""
-        while not self.stopping.is_set():
-            entry = self._pop()
-            if entry is None:
-                return
-            if entry[0] in COMMANDS:
-                self._apply(entry)
-                if entry[2] and self.mode == 'lockstep' and not self.paused:
-                    self._advance_periods(entry[2])
-            else:
-                self._apply(entry)
-
+    # ------------------------------------------------------------------ requests
     def request(self, entry):
-        """Queue work for the loop thread; consecutive commands of one kind without steps to
-        grant collapse into the newest (only the last value matters at the next step)."""
+        """Queue a request (params, reset, pause) for the loop thread, in arrival order."""
         with self._queue_lock:
-            q = self._queue
-            if entry[0] in ('crank', 'load') and not entry[2] and q and q[-1][0] == entry[0] \
-                    and not q[-1][2]:
-                q[-1] = entry
-                return
-            if len(q) >= QUEUE_LIMIT and entry[0] in COMMANDS:
-                self.stats.dropped += 1
-                self.warn('queue', f"command queue full ({QUEUE_LIMIT}): dropping commands")
-                return
-            q.append(entry)
-        if entry[0] not in ('crank', 'load', 'params') or self.mode == 'lockstep':
-            self.wake.set()
+            self._queue.append(entry)
+        self.wake()
 
     def submit(self, kind, arg=None):
         """A service's request: queue it and wait for the loop to carry it out."""
@@ -246,6 +243,13 @@ class RunLoop:
         with self._queue_lock:
             return self._queue.popleft() if self._queue else None
 
+    def _drain(self):
+        """Carry out everything queued, in order (the caller holds the lock)."""
+        while self._queue and not self.stopping.is_set():
+            entry = self._pop()
+            if entry is not None:
+                self._apply(entry)
+
     # ------------------------------------------------------------------ the loop
     def _run(self):
         reduce_timer_slack()
@@ -267,39 +271,47 @@ class RunLoop:
         self._finish_waiters('the node is shutting down')
 
     def _iteration(self):
-        self.wake.clear()
+        self.wake_event.clear()
         want = self.priority if (self.mode == 'realtime' and not self.paused
                                  and not self._demoted) else 0
         if want != self._thread_priority:
             self._set_thread_priority(want)
-        takes = self.running()
-        if takes != self._takes:
-            self._takes = takes
-            self.port.commands_to_loop(takes)
         if self.paused or self.mode == 'lockstep' or self.device.fault:
             with self.lock:
                 self._flush_ahead()
-                did = self._serve_held()
-            if not did:
-                self.wake.wait(IDLE_WAIT_S)
+                self._drain()
             self._resync = True
+            if not (self._queue or self.stopping.is_set()):
+                self.port.wait_commands(IDLE_WAIT_S)   # commands act in ``command``
         elif self.mode == 'fast':
-            with self.lock:
-                self._flush_ahead()
-                for _ in range(FAST_BATCH):
-                    self._serve_running()
-                    if not self.running():
-                        break
-                    period = self._advance()
-                    if period is None:
-                        break
-                    self._publish(period)
+            self._fast_batch()
             self._resync = True
         else:
             self._realtime_tick()
         now = time.monotonic_ns()
         if now - self._snapshot_ns >= STATS_PERIOD_NS:
             self.take_snapshot(now)
+
+    def _fast_batch(self):
+        """Fast mode: FAST_BATCH periods back to back, commands taken before each."""
+        device, port, stats = self.device, self.port, self.stats
+        with self.lock:
+            self._flush_ahead()
+            for _ in range(FAST_BATCH):
+                if self._queue:
+                    self._drain()
+                port.wait_commands(0.0)
+                if not self.running():
+                    break
+                row = device.advance_row()
+                if row is None:
+                    self._report_fault()
+                    break
+                if device.events:
+                    self._publish_events(device.events)
+                port.publish_sample(row, device.crank_rate)
+                stats.samples += 1
+            self.last_row = device.stepper.row
 
     def _set_thread_priority(self, priority):
         """Loop thread: SCHED_FIFO at ``priority`` (realtime mode), else normal scheduling.
@@ -322,21 +334,20 @@ class RunLoop:
         return not (self.paused or self.device.fault or self.mode == 'lockstep'
                     or self.stopping.is_set())
 
-    def _advance(self):
-        period = self.device.advance()
-        if period is None:
-            self.logger.error(f"simulation stopped: {self.device.fault}; call ~/reset")
-        return period
+    def _report_fault(self):
+        self.logger.error(f"simulation stopped: {self.device.fault}; call ~/reset")
 
     def _realtime_tick(self):
         """Publish the period computed ahead at its wall-clock moments, then compute the next."""
         with self.lock:
-            self._serve_running()
+            self._drain()
+            self.port.wait_commands(0.0)
             if not self.running():
                 return
             if self._ahead is None:
-                self._ahead = self._advance()
+                self._ahead = self.device.advance()
                 if self._ahead is None:
+                    self._report_fault()
                     return
         period = self._ahead
         if self._resync:
@@ -353,7 +364,7 @@ class RunLoop:
         if not self._sleep_until(deadline):
             return
         late = time.monotonic_ns() - deadline
-        self._publish(period)
+        self._publish_period(period)
         self._ahead = None
         stats = self.stats
         stats.jitter_ns.add(late)
@@ -387,49 +398,23 @@ class RunLoop:
             remaining = deadline_ns - time.monotonic_ns()
             if remaining <= 0:
                 return True
-            if self.wake.is_set() or self.stopping.is_set():
+            if self.wake_event.is_set() or self.stopping.is_set():
                 return False
             if remaining > SPIN_NS:
-                self.wake.wait(min((remaining - SPIN_NS) * 1e-9, MAX_SLEEP_S))
+                self.wake_event.wait(min((remaining - SPIN_NS) * 1e-9, MAX_SLEEP_S))
 
     def _flush_ahead(self):
         """Leaving realtime mode: publish what the simulation has already computed."""
         if self._ahead is not None:
             period, self._ahead = self._ahead, None
-            self._publish(period)
-
-    def _serve_running(self):
-        """Free-running modes: take the commands, apply everything queued."""
-        if self._takes:
-            self.port.take_commands()
-        while True:
-            entry = self._pop()
-            if entry is None:
-                return
-            self._apply(entry)
-
-    def _serve_held(self):
-        """Paused / lockstep (loop thread, lock held): apply queued work in order, advancing
-        where a command says so; True if there was any."""
-        did = bool(self._queue)
-        self._drain()
-        return did
+            self._publish_period(period)
 
     def _apply(self, entry):
-        """Carry out one queued request on the Device (loop thread only)."""
+        """Carry out one queued request on the Device (loop thread, or the executor thread
+        under the lock while held)."""
         kind = entry[0]
         device = self.device
-        if kind == 'crank':
-            try:
-                device.command_crank_length(entry[1])
-            except CommandError as exc:   # the geometry changed after the command was checked
-                self.logger.warning(f"crank_length_cmd dropped: {exc}")
-        elif kind == 'load':
-            try:
-                device.command_load_torque(entry[1])
-            except CommandError as exc:
-                self.logger.warning(f"load_torque_cmd dropped: {exc}")
-        elif kind == 'params':
+        if kind == 'params':
             try:
                 device.update_parameters(entry[1])
             except (ParameterError, GrashofError) as exc:
@@ -469,13 +454,17 @@ class RunLoop:
                 entry[1].finish(False, message)
 
     # ------------------------------------------------------------------ publishing
-    def _publish(self, period):
-        for event in period.events[period.next_event:]:
-            self._publish_switch(event)
+    def _publish_period(self, period):
+        """A computed-ahead period (realtime): its remaining switches, then its sample."""
+        self._publish_events(period.events[period.next_event:])
         period.next_event = len(period.events)
-        self.port.publish_sample(period)
+        self.port.publish_sample(period.row, period.crank_rate)
         self.last_row = period.row
         self.stats.samples += 1
+
+    def _publish_events(self, events):
+        for event in events:
+            self._publish_switch(event)
 
     def _publish_switch(self, event):
         self.port.publish_switch(event)
@@ -496,4 +485,4 @@ class RunLoop:
         self._snapshot_ns = now_ns
 
 
-__all__ = ['RunLoop', 'Throttle', 'Waiter', 'reduce_timer_slack']
+__all__ = ['REALTIME_POLICY', 'RunLoop', 'Throttle', 'Waiter', 'reduce_timer_slack']

@@ -1,5 +1,6 @@
 """``cvt_node``: run the device node until SIGINT / SIGTERM."""
 import argparse
+import os
 import sys
 
 import rclpy
@@ -15,6 +16,10 @@ from .node import DEFAULT_SCENE, CvtSimNode
 # The loop thread must get the GIL soon after its deadline even while the executor thread is busy
 # (a flood of commands): Python's default 5 ms switch interval would be a 5 ms jitter.
 GIL_SWITCH_INTERVAL_S = 1e-4
+# Fast DDS publishes from the calling thread instead of handing each sample to its writer thread:
+# one thread wake-up less per message, which halves a lockstep round trip on a busy machine
+# (BENCHMARKS.md, "ROS node"). The user's own setting wins.
+PUBLICATION_MODE = ('RMW_FASTRTPS_PUBLICATION_MODE', 'SYNCHRONOUS')
 
 
 def build_parser():
@@ -58,6 +63,7 @@ def _run(argv):
     else:
         base = DEFAULT_SCENE
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
+    os.environ.setdefault(*PUBLICATION_MODE)
     rclpy.init(args=['cvt_node'] + argv)
     try:
         node = CvtSimNode(base_scene=base)

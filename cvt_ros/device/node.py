@@ -23,6 +23,7 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import CallbackGroup
 from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import InvalidHandle, ParameterNotDeclaredException
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -49,6 +50,7 @@ from .descriptors import (
 from .diagnostics import Reporter
 from .loop import REALTIME_POLICY, RunLoop
 
+RCLError = _rclpy.RCLError
 TAKE_LIMIT = 1000              # command messages the loop takes per subscription and step
 
 CRANK = 'linkage.crank_length'
@@ -63,19 +65,15 @@ _RATE_SLOT, _FORCE_SLOT = 9, 14
 
 
 class _CommandGroup(CallbackGroup):
-    """The command subscriptions' callback group. While the simulation runs free (realtime,
-    fast) the loop thread takes their messages itself at the start of each physics step, and the
-    executor leaves them alone: a flood of commands then costs the loop a few µs per message
-    instead of a fight for the interpreter lock with an executor thread busy at 100 %. While the
-    simulation is held (paused, lockstep) the executor delivers them as usual. Both paths call
-    the same subscription callbacks."""
-
-    def __init__(self):
-        super().__init__()
-        self.loop_takes = False
+    """The command subscriptions' callback group: the executor leaves them alone, the loop
+    thread takes their messages itself (``CvtSimNode.wait_commands``: its own rcl wait set).
+    While the simulation runs free it polls them at the start of each period (a flood costs a
+    few µs per message, no fight for the interpreter lock with a busy executor thread); while it
+    is held (lockstep, paused) it blocks on them, so a lockstep command is one wake-up of the
+    loop thread, which applies it, advances and publishes — no executor pass, no hand-over."""
 
     def can_execute(self, entity):
-        return not self.loop_takes
+        return False
 
     def beginning_execution(self, entity):
         return True
@@ -108,7 +106,7 @@ class CvtSimNode(Node):
         self._joint_names = [values['joint_prefix'] + j for j in JOINTS]
         self._actuator_joint = self._joint_names[-1]   # its position in joint_commands
         self._warm_up(values)
-        self.device = Device(values, 1.0 / values['publish_rate'])
+        self.device = Device(values, 1.0 / values['publish_rate'], timing=True)
         # the last accepted commands (executor thread; the loop applies them a step later)
         self._crank_target = values['linkage.crank_length']
         self._load_command = values['load.torque']
@@ -130,6 +128,8 @@ class CvtSimNode(Node):
             ClockMsg, interface.CLOCK, interface.clock_qos())
         self.diagnostics_publisher = self.create_publisher(
             DiagnosticArray, interface.DIAGNOSTICS, interface.diagnostics_qos())
+        self._sample_handles = (self.joint_states_publisher.handle, self.state_publisher.handle,
+                                self.clock_publisher.handle)
         self._command_group = _CommandGroup()
         # the load subscription first: rclpy's executor runs ready callbacks in creation order,
         # so a disturbance that arrived with a crank command acts in that command's period
@@ -145,6 +145,12 @@ class CvtSimNode(Node):
         self._command_subscriptions = (self.load_torque_cmd_subscription,
                                        self.crank_length_cmd_subscription,
                                        self.joint_commands_subscription)
+        # the loop thread's own wait: the command subscriptions and a guard to wake it
+        with self.context.handle:
+            self._wake_guard = _rclpy.GuardCondition(self.context.handle)
+            self._wait_set = _rclpy.WaitSet(len(self._command_subscriptions), 1, 0, 0, 0, 0,
+                                            self.context.handle)
+        self._command_pointers = [s.handle.pointer for s in self._command_subscriptions]
         self.reset_service = self.create_service(Trigger, '~/reset', self.reset_callback)
         self.pause_service = self.create_service(SetBool, '~/pause', self.pause_callback)
         self.step_service = self.create_service(Trigger, '~/step', self.step_callback)
@@ -351,10 +357,7 @@ class CvtSimNode(Node):
                 self._crank_target = value
             else:
                 self._load_command = value
-        if grant and loop.held():
-            loop.lockstep_command(kind, value, grant)   # here, now: one wake-up per period
-        elif kind is not None:
-            loop.request((kind, value, grant))
+        loop.command(kind, value, grant)   # loop thread: applied now, stepped if held
 
     def _count_lost(self, topic, info):
         """Commands lost before they reached this node (a publisher overwrote its own unsent
@@ -379,26 +382,47 @@ class CvtSimNode(Node):
                                f"shorter than its backlog (publish with keep_all or a deeper "
                                f"history, or wait for each sample in lockstep)")
 
-    def take_commands(self):
-        """Free-running modes (loop thread): hand the commands that arrived to their callbacks
-        (which check them and queue the valid ones), right before the step they act on."""
-        for sub in self._command_subscriptions:
+    def wait_commands(self, timeout_s):
+        """Loop thread: wait up to ``timeout_s`` (0: just look) for command messages or
+        ``wake()``; hand every message that arrived to its subscription's callback, load
+        commands first (a disturbance that came with a crank command acts in its period), at most
+        TAKE_LIMIT per subscription. True if any came."""
+        subs = self._command_subscriptions
+        wait_set = self._wait_set
+        try:
+            with self.context.handle, self._wake_guard, subs[0].handle, subs[1].handle, \
+                    subs[2].handle:
+                wait_set.clear_entities()
+                for sub in subs:
+                    wait_set.add_subscription(sub.handle)
+                wait_set.add_guard_condition(self._wake_guard)
+                wait_set.wait(int(timeout_s * 1e9))
+                ready = wait_set.get_ready_entities('subscription')
+        except (InvalidHandle, RCLError):   # shutting down
+            return False
+        if not ready:
+            return False
+        for sub, pointer in zip(subs, self._command_pointers, strict=True):
+            if pointer not in ready:
+                continue
             for _ in range(TAKE_LIMIT):
                 try:
                     with sub.handle:
                         taken = sub.handle.take_message(sub.msg_type, sub.raw)
                 except InvalidHandle:   # shutting down
-                    return
+                    return False
                 if taken is None:
                     break
                 sub.callback(*taken)
+        return True
 
-    def commands_to_loop(self, takes):
-        """The loop takes the commands itself (running free) or the executor delivers them."""
-        self._command_group.loop_takes = takes
-        executor = self.executor
-        if executor is not None:
-            executor.wake()   # let it rebuild its wait set with / without the commands
+    def wake(self):
+        """Interrupt the loop thread's wait_commands (a request, a setting, stop)."""
+        try:
+            with self._wake_guard:
+                self._wake_guard.trigger_guard_condition()
+        except InvalidHandle:
+            pass
 
     # ------------------------------------------------------------------ services
     def reset_callback(self, request, response):
@@ -438,7 +462,7 @@ class CvtSimNode(Node):
         self.clutch_engaged_publisher.publish(msg)
         self._hand_to_recorder(self._topic['clutch_engaged'], msg,
                                interface.stamp_ns(period.t))
-        self.publish_sample(period)
+        self.publish_sample(period.row, period.crank_rate)
 
     def publish_switch(self, event):
         """One clutch switch, at its own simulation time (Bool has no stamp: the switch time is
@@ -447,22 +471,32 @@ class CvtSimNode(Node):
         self.clutch_engaged_publisher.publish(msg)
         self._hand_to_recorder(self._topic['clutch_engaged'], msg, interface.stamp_ns(event.t))
 
-    def publish_sample(self, period):
-        """joint_states, state and /clock of one period's end, serialized once (CDR bytes)."""
-        row = period.row
-        ns = interface.stamp_ns(row[0])
-        sec, nanosec = divmod(ns, 1_000_000_000)
+    def publish_sample(self, row, crank_rate):
+        """joint_states, state and /clock of one period's end (``row``: its sample, the
+        actuator's rate [m/s]), serialized once (CDR bytes), published through the publishers'
+        handles (rclpy's publish() adds a type check per message and nothing else)."""
         values = row.take(_FIELDS).tolist()
-        values[_RATE_SLOT] = period.crank_rate
+        ns = round(float(row[0]) * 1e9)   # = interface.stamp_ns(row[0])
+        sec, nanosec = divmod(ns, 1_000_000_000)
+        values[_RATE_SLOT] = crank_rate
         values[_FORCE_SLOT] = math.nan   # the actuator's force is not modelled
         data = self._encoder.encode(sec, nanosec, values)
-        self.joint_states_publisher.publish(data)
-        self.state_publisher.publish(data)
-        self._hand_to_recorder(self._topic['joint_states'], data, ns)
-        if self._publish_clock:
-            clock = interface.clock_cdr(ns)
-            self.clock_publisher.publish(clock)
-            self._hand_to_recorder(self._topic['clock'], clock, ns)
+        joint_states, state, clock_handle = self._sample_handles
+        try:
+            with joint_states:
+                joint_states.publish_raw(data)
+            with state:
+                state.publish_raw(data)
+            if self._publish_clock:
+                clock = interface.clock_cdr(ns)
+                with clock_handle:
+                    clock_handle.publish_raw(clock)
+        except InvalidHandle:   # shutting down
+            return
+        if self._recorder is not None:
+            self._hand_to_recorder(self._topic['joint_states'], data, ns)
+            if self._publish_clock:
+                self._hand_to_recorder(self._topic['clock'], clock, ns)
         self._published_ns = ns
 
     def recording_reset(self):

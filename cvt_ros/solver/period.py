@@ -1,0 +1,265 @@
+"""One control period per compiled call: the device's fast path over a Simulator (DEVICE room).
+
+A device in lockstep makes, every period, a crank command, ``Simulator.advance(dt)`` and
+``Simulator.sample()``: three Python-level calls that each unbox a dozen arrays, build Python
+objects and run Python bookkeeping (~15 µs of the ~20 µs a 1 ms period costs). ``PeriodStepper``
+does the same work in one compiled call per period, writing the sample into a buffer it owns,
+with no Python object made per period:
+
+    stepper = PeriodStepper(sim, dt)
+    stepper.command_crank_length(0.05)      # = sim.command_crank_length(0.05)
+    row = stepper.advance()                 # = sim.advance(dt); sim.sample()  (row is reused)
+    stepper.switches, stepper.crank_rate    # the clutch switches inside, the actuator's rate
+
+It is bit-identical to those Simulator calls (test_period.py checks it over commands, clutch
+events, angle rebasing and both simulator classes) and leaves the Simulator in the same state, so
+the two can be mixed. The rare cases — clutch events (their ClutchSwitch objects), a full event
+table, the whole-turn rebase of φ1/φ4, a failed step — are finished in Python by the Simulator's
+own code. ``plan_into`` is ``physics.drives.plan_profile`` compiled without fast-math (its floats
+as Python computes them: the same libm ``pow``), writing the profile into ``sim.ACT`` in place.
+
+numba caches a kernel keyed on its own file only; the kernels here inline the core's, so their
+cache is dropped when any solver/physics source is newer (``_drop_stale_cache``).
+"""
+import glob
+import math
+import os
+
+import numpy as np
+from numba import njit
+
+from ..physics import layout as L
+from ..physics.clutch import KIND_GRAZE
+from ..physics.compiled import FASTMATH
+from ..physics.drives import crank_actuator
+from ..physics.dynamics import rhs
+from . import hybrid as H
+from .averaged import AveragedSimulator, averaged_advance, averaged_sample
+from .output import COL, N_COLUMNS, write_sample
+from .simulator import _KIND_NAMES, REBASE_TURNS, ClutchSwitch, SimulationError
+from .steppers import RK4
+
+_HERE = os.path.dirname(os.path.abspath(__file__))
+_PHI1, _PHI3, _PHI4 = COL['phi1'], COL['phi3'], COL['phi4']
+TWO_PI = 2.0 * math.pi
+
+# return codes of the period kernels
+DONE = 0          # sampled; no clutch event
+EVENTS = 1        # sampled; clutch events to report (counters[C_EVENTS] rows)
+UNFINISHED = 2    # not sampled: events table full, a failure, or angles to rebase (Python)
+NO_SWITCHES = ()
+
+
+def _drop_stale_cache():
+    """Delete this module's cached kernels when a solver/physics source is newer than them."""
+    sources = glob.glob(os.path.join(_HERE, '*.py')) + glob.glob(
+        os.path.join(os.path.dirname(_HERE), 'physics', '*.py'))
+    newest = max(os.path.getmtime(p) for p in sources)
+    for path in glob.glob(os.path.join(_HERE, '__pycache__', 'period.*.nb[ic]')):
+        try:
+            if os.path.getmtime(path) < newest:
+                os.remove(path)
+        except OSError:
+            pass
+
+
+_drop_stale_cache()
+
+
+@njit(cache=True, error_model='numpy')   # no fast-math: Python's float operations, in order
+def plan_into(ACT, t0, a0, v0, target, rate_limit, accel_limit, two):
+    """``physics.drives.plan_profile`` into ``ACT`` (rows beyond the plan: inf). ``two`` = 2.0,
+    passed at run time so that ``x ** two`` stays libm's pow, as CPython computes ``x ** 2``."""
+    for i in range(ACT.shape[0]):
+        for j in range(4):
+            ACT[i, j] = np.inf
+    n = 0
+    t, a, v = t0, a0, v0
+    dist = target - a
+    stop = v * v / (2.0 * accel_limit)
+    if v != 0.0 and (math.copysign(1.0, v) != math.copysign(1.0, dist) or stop > abs(dist)):
+        acc = -math.copysign(accel_limit, v)
+        dt = abs(v) / accel_limit
+        ACT[n, 0], ACT[n, 1], ACT[n, 2], ACT[n, 3] = t, a, v, acc
+        n += 1
+        a, v, t = a + v * dt + 0.5 * acc * dt * dt, 0.0, t + dt
+        dist = target - a
+    if dist != 0.0:
+        sgn = math.copysign(1.0, dist)
+        speed = abs(v)
+        root = math.sqrt((2.0 * accel_limit * abs(dist) + speed * speed) / 2.0)
+        peak = root if root < rate_limit else rate_limit     # Python's min(rate_limit, root)
+        t_ramp = abs(peak - speed) / accel_limit
+        d_ramp = abs(peak * peak - speed * speed) / (2.0 * accel_limit)
+        d_brake = peak * peak / (2.0 * accel_limit)
+        rest = abs(dist) - d_ramp - d_brake
+        d_cruise = 0.0 if 0.0 > rest else rest                # Python's max(rest, 0.0)
+        if t_ramp > 0.0:
+            acc = sgn * accel_limit * (1.0 if peak > speed else -1.0)
+            ACT[n, 0], ACT[n, 1], ACT[n, 2], ACT[n, 3] = t, a, v, acc
+            n += 1
+            a, v, t = a + v * t_ramp + 0.5 * acc * t_ramp ** two, sgn * peak, t + t_ramp
+        if d_cruise > 0.0:
+            ACT[n, 0], ACT[n, 1], ACT[n, 2], ACT[n, 3] = t, a, v, 0.0
+            n += 1
+            t_cruise = d_cruise / peak
+            a, t = a + v * t_cruise, t + t_cruise
+        ACT[n, 0], ACT[n, 1], ACT[n, 2], ACT[n, 3] = t, a, v, -sgn * accel_limit
+        n += 1
+        t += peak / accel_limit
+    ACT[n, 0], ACT[n, 1], ACT[n, 2], ACT[n, 3] = t, target, 0.0, 0.0
+
+
+@njit(cache=True, error_model='numpy', fastmath=FASTMATH)
+def actuator_now(t, ACT, out):
+    """out[0], out[1] = the actuator's (a, a') at t, as Simulator.command_crank_length reads it."""
+    a, ad, _ = crank_actuator(t, ACT)
+    out[0] = a
+    out[1] = ad
+
+
+@njit(cache=True, error_model='numpy', fastmath=FASTMATH)
+def _finish(t, y, mode, P, ACT, turns1, turns4, dy, aux, row):
+    """Simulator.sample() into ``row`` (unless angles are due for rebasing); the actuator rate."""
+    if (abs(math.floor(y[L.PHI1] / TWO_PI)) >= REBASE_TURNS
+            or abs(math.floor(y[L.PHI4] / TWO_PI)) >= REBASE_TURNS):
+        return False, 0.0
+    rhs(t, y, mode, P, ACT, dy, aux)
+    write_sample(row, t, y, mode, aux)
+    row[_PHI1] += turns1
+    row[_PHI3] += turns4
+    row[_PHI4] += turns4
+    _, ad, _ = crank_actuator(t, ACT)
+    return True, ad
+
+
+@njit(cache=True, error_model='numpy', fastmath=FASTMATH)
+def hybrid_period(t, dt, h_fixed, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters,
+                  ledger, turns1, turns4, dy, aux, row):
+    """Simulator.advance(dt) then Simulator.sample() into ``row``: (t, code, crank rate)."""
+    if S[H.S_METHOD] == RK4:
+        n = max(1, math.ceil(dt / h_fixed - 1e-9))
+        S[H.S_H_FIXED] = dt / n
+    t = H.advance(t, t + dt, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, ledger)
+    if counters[H.C_STATUS] != H.STATUS_OK:
+        return t, UNFINISHED, 0.0
+    sampled, rate = _finish(t, y, ms[0], P, ACT, turns1, turns4, dy, aux, row)
+    if not sampled:
+        return t, UNFINISHED, 0.0
+    return t, EVENTS if counters[H.C_EVENTS] > 0 else DONE, rate
+
+
+@njit(cache=True, error_model='numpy', fastmath=FASTMATH)
+def averaged_period(t, dt, h_fixed, y, P, ACT, A, W1, M, R, j1e, S, grid, out, counters,
+                    turns1, turns4, aux, ysample, row):
+    """AveragedSimulator.advance(dt) then .sample() into ``row``: (t, code, crank rate)."""
+    if S[H.S_METHOD] == RK4:
+        n = max(1, math.ceil(dt / h_fixed - 1e-9))
+        S[H.S_H_FIXED] = dt / n
+    t = averaged_advance(t, t + dt, y, P, ACT, A, W1, M, R, j1e, grid, out, counters)
+    if (abs(math.floor(y[L.PHI1] / TWO_PI)) >= REBASE_TURNS
+            or abs(math.floor(y[L.PHI4] / TWO_PI)) >= REBASE_TURNS):
+        return t, UNFINISHED, 0.0
+    md = averaged_sample(t, y, P, ACT, A, W1, M, R, j1e, aux, ysample)
+    write_sample(row, t, ysample, L.ENGAGED if md > 0.0 else L.DISENGAGED, aux)
+    row[_PHI1] += turns1
+    row[_PHI3] += turns4
+    row[_PHI4] += turns4
+    _, ad, _ = crank_actuator(t, ACT)
+    return t, DONE, ad
+
+
+class PeriodStepper:
+    """A Simulator advanced ``dt`` [s] per call, in one compiled call (see the module text).
+
+    ``row``: the sample at the end of the last period (``output.COLUMNS``; one buffer, rewritten
+    by each ``advance``); ``switches``: the clutch switches inside it (ClutchSwitch, grazing
+    contacts included, as Simulator.advance returns them); ``crank_rate``: the actuator's rate
+    at its end [m/s]. Call ``refresh()`` after anything replaced the Simulator's arrays
+    (``reset``, ``update_parameters``, ``Simulator.command_crank_length``).
+    """
+
+    def __init__(self, sim, dt):
+        self.sim = sim
+        self.dt = float(dt)
+        self.row = np.empty(N_COLUMNS)
+        self.switches = NO_SWITCHES
+        self.crank_rate = 0.0
+        self._dy = np.empty(L.N_STATE)
+        self._aux = np.empty(L.N_AUX)
+        self._ysample = np.empty(L.N_STATE)
+        self._act = np.empty(2)
+        self.averaged = isinstance(sim, AveragedSimulator)
+        self.refresh()
+
+    def refresh(self):
+        """Take the Simulator's present arrays and settings."""
+        sim = self.sim
+        v = sim.values
+        self._limits = (v['linkage.crank_rate_limit'], v['linkage.crank_accel_limit'])
+
+    # ------------------------------------------------------------------ commands
+    def command_crank_length(self, target):
+        """Simulator.command_crank_length(target) for a target the caller has checked against
+        the Grashof bound (the device does): the profile planned into ``sim.ACT`` in place."""
+        sim = self.sim
+        act = self._act
+        actuator_now(sim.t, sim.ACT, act)
+        plan_into(sim.ACT, sim.t, act[0], act[1], float(target), self._limits[0],
+                  self._limits[1], 2.0)
+        sim.crank_length_target = float(target)
+
+    # ------------------------------------------------------------------ time
+    def advance(self):
+        """One period: the sample row (the stepper's buffer). Raises SimulationError as
+        Simulator.advance does (the Simulator then holds the state it failed in)."""
+        sim = self.sim
+        t0 = sim.t
+        if self.averaged:
+            m = sim.ratio_map
+            sim.t, code, rate = averaged_period(
+                sim.t, self.dt, sim.h_fixed, sim.y, sim.P, sim.ACT, m.a, m.w1, m.m, m.ratio,
+                sim.j1e, sim.S, sim._empty_grid, sim._empty_out, sim.counters, sim.turns_phi1,
+                sim.turns_phi4, self._aux, self._ysample, self.row)
+        else:
+            sim.t, code, rate = hybrid_period(
+                sim.t, self.dt, sim.h_fixed, sim.y, sim.ms, sim.P, sim.ACT, sim.LIN, sim.S,
+                sim.h_io, sim._empty_grid, sim._empty_out, sim._events_buf, sim.counters,
+                sim.ledger, sim.turns_phi1, sim.turns_phi4, self._dy, self._aux, self.row)
+        if code == DONE:
+            self.switches = NO_SWITCHES
+            self.crank_rate = rate
+            return self.row
+        self.switches = self._events(sim)
+        if code == EVENTS:
+            self.crank_rate = rate
+            return self.row
+        # the rare rest, by the Simulator's own code: a full event table, a failure, a rebase
+        status = H.STATUS_OK if self.averaged else int(sim.counters[H.C_STATUS])
+        if status == H.STATUS_EVENTS_FULL and sim.t < t0 + self.dt:
+            self.switches += sim._advance_to(t0 + self.dt, sim._empty_grid, sim._empty_out)
+        elif status not in (H.STATUS_OK, H.STATUS_EVENTS_FULL):
+            raise SimulationError(sim._failure_text(status, self.switches))
+        sim._rebase_angles()
+        self.row[:] = sim.sample()
+        self.crank_rate = float(crank_actuator(sim.t, sim.ACT)[1])
+        return self.row
+
+    def _events(self, sim):
+        """Simulator._call's bookkeeping of the located events (switch count, late events)."""
+        n_ev = int(sim.counters[H.C_EVENTS])
+        if n_ev == 0:
+            return []
+        rows = sim._events_buf[:n_ev]
+        switches = [ClutchSwitch(float(r[H.E_T]), bool(r[H.E_MODE] == L.ENGAGED),
+                                 _KIND_NAMES[int(r[H.E_KIND])], float(r[H.E_VALUE]))
+                    for r in rows]
+        sim.switch_count += int(np.count_nonzero(rows[:, H.E_KIND] != KIND_GRAZE))
+        late = rows[rows[:, H.E_LATE] > 0.0]
+        if len(late) and sim.first_late_event is None:
+            sim.first_late_event = float(late[0, H.E_T])
+        sim.counters[H.C_EVENTS] = 0
+        return switches
+
+
+__all__ = ['PeriodStepper', 'plan_into']

@@ -1,0 +1,104 @@
+"""The device's one-call period (solver/period.py: PeriodStepper) is the Simulator's
+``command_crank_length`` / ``advance(dt)`` / ``sample()`` to the bit — over crank commands every
+period, load changes, clutch events, the whole-turn rebase of the angles, every fidelity — and
+the Device built on it equals the offline core driven with the same commands."""
+import math
+
+import numpy as np
+import pytest
+
+from cvt_ros.device.core import Device
+from cvt_ros.physics.drives import plan_profile
+from cvt_ros.scene import load_scene
+from cvt_ros.solver.fidelity import make_simulator
+from cvt_ros.solver.period import PeriodStepper, plan_into
+
+DT = 1e-3
+CASES = [
+    ('conveyor', {'solver.method': 'rk4'}),
+    ('conveyor', {'solver.method': 'dopri5'}),
+    ('paper', {'solver.method': 'rk4', 'model.formulation': 'paper'}),
+    ('conveyor', {'solver.method': 'rk4', 'model.fidelity': 'rigid_shaft'}),
+    ('conveyor', {'solver.method': 'rk4', 'model.fidelity': 'averaged'}),
+]
+
+
+def commands(sim, n, seed=0):
+    """A controller-like command sequence: small moves most periods, a jump every 50, none
+    every 7th period; a load change now and then. (period, crank length or None, load or
+    None) for n periods."""
+    rng = np.random.default_rng(seed)
+    bound = sim.grashof_bound
+    target = sim.crank_length_target
+    out = []
+    for k in range(n):
+        crank = load = None
+        if k % 7 != 3:
+            target = (rng.uniform(0.2, 0.9) * bound if k % 50 == 0
+                      else target + rng.normal(0.0, 1e-4))
+            crank = float(min(max(target, 0.0), 0.95 * bound))
+        if k % 397 == 5:
+            load = float(rng.uniform(0.0, 12.0))
+        out.append((crank, load))
+    return out
+
+
+@pytest.mark.parametrize('scene,overrides', CASES, ids=lambda c: str(c))
+def test_period_stepper_is_the_simulator_to_the_bit(scene, overrides):
+    values = load_scene(scene, overrides)
+    offline, fast = make_simulator(values), make_simulator(values)
+    stepper = PeriodStepper(fast, DT)
+    switches = 0
+    # 3000 periods: ~450 crank turns, so φ1's whole turns are folded out (rebase) on the way
+    for k, (crank, load) in enumerate(commands(offline, 3000)):
+        if crank is not None:
+            offline.command_crank_length(crank)
+            stepper.command_crank_length(crank)
+        if load is not None:
+            offline.set_load_torque(load)
+            fast.set_load_torque(load)
+        expected = offline.advance(DT)
+        row = offline.sample()
+        assert np.array_equal(stepper.advance(), row), k
+        assert [(s.t, s.engaged, s.kind) for s in stepper.switches] == \
+            [(s.t, s.engaged, s.kind) for s in expected], k
+        switches += len(expected)
+    assert offline.turns_phi1 > 0.0                     # the rebase happened
+    assert (fast.t, fast.switch_count) == (offline.t, offline.switch_count)
+    assert np.array_equal(fast.ACT, offline.ACT) and np.array_equal(fast.y, offline.y)
+    if overrides.get('model.fidelity') != 'averaged':
+        assert switches > 100                            # clutch events inside periods
+
+
+def test_compiled_plan_is_the_python_plan_to_the_bit():
+    rng = np.random.default_rng(1)
+    act = np.empty((5, 4))
+    for _ in range(20000):
+        t0, a0 = rng.uniform(0.0, 100.0), rng.uniform(0.0, 0.1)
+        v0 = rng.choice([0.0, rng.normal(0.0, 0.02)])
+        target = rng.choice([a0, rng.uniform(0.0, 0.1)])
+        rate, accel = 10.0 ** rng.uniform(-4, 0), 10.0 ** rng.uniform(-3, 2)
+        plan_into(act, t0, a0, v0, target, rate, accel, 2.0)
+        assert np.array_equal(act, plan_profile(t0, a0, v0, target, rate, accel))
+
+
+def test_device_equals_the_offline_core_with_the_same_commands():
+    """What test_node_lockstep checks over DDS, in process: a repeated set point does not
+    re-plan (the offline loop commands only changes), a refused command changes nothing."""
+    values = load_scene('conveyor', {'solver.method': 'rk4'})
+    device = Device(values, DT)
+    sim = make_simulator(values)
+    rows = [device.present_state().row]
+    expected = [sim.sample()]
+    for k in range(1500):
+        value = (0.04, 0.06, math.nan, 0.06, 0.2)[(k // 100) % 5]
+        try:
+            device.command_crank_length(value)
+        except ValueError:
+            pass
+        if math.isfinite(value) and value < 0.1 and value != sim.crank_length_target:
+            sim.command_crank_length(value)
+        rows.append(device.advance_row().copy())
+        sim.advance(DT)
+        expected.append(sim.sample())
+    assert np.array_equal(np.array(rows), np.array(expected))
