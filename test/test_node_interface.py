@@ -291,7 +291,7 @@ def test_command_flood_does_not_stall_publishing(device):
     assert int(sent) == 30000
     after = next_diagnostics(diagnostics)
     # the samples kept coming, one per control period, none repeated, none skipped (how late
-    # they were on a busy machine is the benchmark's to measure, docs/bench_node.md)
+    # they were on a busy machine is the benchmark's to measure, BENCHMARKS.md, "ROS node")
     n_end = len(joints)
     assert wait_for(lambda: len(joints) >= n_end + 100, 10.0)
     stamps = np.array([stamp_ns(m) for m in joints.messages(n0)])

@@ -7,6 +7,10 @@ Nothing here waits on the wall clock for the device's sake: every wait is for a 
 matched subscription or a count of simulation-time samples (the timeouts only end a broken run).
 """
 import math
+import re
+import subprocess
+import sys
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -21,6 +25,7 @@ from node_harness import (
     diagnostics_values,
     domain_id,
     flood,
+    ros_env,
     stamp_ns,
     wait_for,
 )
@@ -259,6 +264,44 @@ def test_lockstep_controller_run_is_reproducible_to_the_bit(device):
     assert first[-1, 8] > first[15 * STEPS, 8]
     # (rate-limited to 10 mm/s: still on its way up at the end, short of the 0.05 m target)
     assert 0.04 < first[15 * STEPS + 1, 4] < first[25 * STEPS, 4] < first[-1, 4] < 0.05
+
+
+def test_the_docs_controller_runs_as_written(device, tmp_path):
+    """docs/lockstep.md's minimal rclpy controller, copied from the page and started in its own
+    process (after the node: it gets the latched sample): it drives the device to t = 5 s, one
+    command per sample, and its run is the offline core's with the same PI law, to the bit."""
+    page = (Path(__file__).resolve().parent.parent / 'docs' / 'lockstep.md').read_text()
+    (block,) = re.findall(r'^```python\n(.*?)^```', page, re.S | re.M)
+    script = tmp_path / 'speed_controller.py'
+    script.write_text(block)
+    n0 = reset(device)
+    set_params(device, steps_per_command=1)
+    try:
+        proc = subprocess.run([sys.executable, str(script)], env=ros_env(device.domain),
+                              capture_output=True, text=True, timeout=900)
+        assert proc.returncode == 0, proc.stdout + proc.stderr
+        wait_stamp(device, 5000 * MS)
+    finally:
+        set_params(device, steps_per_command=0)
+    msgs = device.joints.messages(n0)
+    # one period per sample it received: t = 0 … 5 s (its command at 5 s advances one more)
+    assert [stamp_ns(m) for m in msgs][:5001] == [k * MS for k in range(5001)]
+    node = np.array([row(m) for m in msgs[:5001]])
+    # the same law offline: the sample at t gives the command that makes the sample at t + dt
+    target, kp, ki = (float(x) for x in re.search(
+        r'TARGET, KP, KI, DT = ([\d.e-]+), ([\d.e-]+), ([\d.e-]+)', block).groups())
+    sim = Simulator(load_scene('conveyor', {'solver.method': 'rk4'}))
+    rows, integral = [sim.sample()[COLUMNS]], 0.0
+    for _ in range(5000):
+        error = target - rows[-1][8]
+        integral += error * DT
+        crank = min(max(0.04 + kp * error + ki * integral, 0.0), 0.09)
+        if crank != sim.crank_length_target:
+            sim.command_crank_length(crank)
+        sim.advance(DT)
+        rows.append(sim.sample()[COLUMNS])
+    assert np.array_equal(node, np.array(rows)), np.abs(node - np.array(rows)).max()
+    assert abs(node[-1, 8] - target) < abs(node[0, 8] - target)   # it does control the speed
 
 
 def test_disturbance_file_lands_in_its_period(device, tmp_path):
