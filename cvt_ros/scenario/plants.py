@@ -7,11 +7,14 @@ Every back end offers the same five calls, so the harness loop (harness.py) is o
 * ``step()`` → (sample row at the end of the period, clutch switches inside it as (t, engaged));
 * ``close()``.
 
-``OfflinePlant`` drives the core's Simulator directly: apply commands, ``advance(period)``,
-``sample()`` — the same calls, in the same order, as the device's lockstep loop makes, which is
-why the two give bit-identical traces.
+``OfflinePlant`` drives the core's Simulator directly, one compiled call per period
+(``solver.period.PeriodStepper``: command, ``advance(period)``, ``sample()`` to the bit) — the
+same calls, in the same order, as the device's lockstep loop makes, which is why the two give
+bit-identical traces.
 """
+from ..physics.linkage import check_crank_length
 from ..solver.fidelity import make_simulator
+from ..solver.period import PeriodStepper
 
 
 def plant_values(scenario):
@@ -26,7 +29,11 @@ class OfflinePlant:
 
     def __init__(self, values, period):
         self.sim = make_simulator(values)
+        self.stepper = PeriodStepper(self.sim, period)
         self.period = period
+        v = self.sim.values
+        self._geometry = (v['linkage.rocker_length'], v['linkage.coupler_length'],
+                          v['linkage.pivot_distance'])
 
     def start(self):
         return self.sim.sample()
@@ -35,11 +42,12 @@ class OfflinePlant:
         self.sim.set_load_torque(torque)
 
     def command_crank_length(self, length):
-        self.sim.command_crank_length(length)
+        check_crank_length(length, *self._geometry)   # GrashofError, as Simulator's
+        self.stepper.command_crank_length(length)
 
     def step(self):
-        switches = self.sim.advance(self.period)
-        return self.sim.sample(), [(s.t, s.engaged) for s in switches if s.kind != 'graze']
+        row = self.stepper.advance().copy()   # (the stepper's buffer is rewritten next period)
+        return row, [(s.t, s.engaged) for s in self.stepper.switches if s.kind != 'graze']
 
     def close(self):
         pass
