@@ -15,7 +15,7 @@ that cost against the kernel's own. The Jacobian is SUNDIALS' dense difference q
 (N_STATE RHS calls per Jacobian, counted in ``nfev``).
 """
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -23,7 +23,7 @@ from ..physics import layout as L
 from ..physics.clutch import clutch_guard
 from ..physics.compiled import kernel
 from ..physics.dynamics import project, rhs
-from .reference import initial_state, next_mode
+from .reference import ReferenceResult, initial_state, next_mode
 from .simulator import Simulator
 
 METHODS = ('BDF', 'Adams')
@@ -54,15 +54,10 @@ def _rhs_loop(t, y, mode, P, ACT, dy, aux, n):
 
 
 @dataclass
-class CvodeResult:
-    t: float
-    y: np.ndarray
-    switch_times: list = field(default_factory=list)
-    switch_modes: list = field(default_factory=list)
-    nfev: int = 0          # RHS evaluations, the difference-quotient Jacobian's included
-    njev: int = 0          # Jacobian evaluations (BDF)
+class CvodeResult(ReferenceResult):
+    """ReferenceResult (nfev: the difference-quotient Jacobian's RHS calls included) and:"""
+    njev: int = 0          # Jacobian evaluations
     steps: int = 0         # CVode calls (segments between roots)
-    wall_time: float = 0.0
 
 
 class _ModeSolver:
