@@ -22,6 +22,7 @@ MODULE_KEYS = {
     'mcap': 'python3-mcap-pip', 'lz4': 'python3-mcap-pip', 'zstandard': 'python3-mcap-pip',
     'dask': 'python3-dask-distributed-pip', 'distributed': 'python3-dask-distributed-pip',
     'pyarrow': 'python3-pyarrow-pip',
+    'sksundae': 'python3-scikit-sundae-pip',
 }
 ROS_PACKAGES = {'rclpy', 'rcl_interfaces', 'std_msgs', 'sensor_msgs', 'std_srvs', 'rosgraph_msgs',
                 'diagnostic_msgs', 'geometry_msgs', 'visualization_msgs', 'builtin_interfaces',

@@ -10,7 +10,7 @@ import importlib
 import os
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from .defects import known_defects, section_defects
@@ -43,6 +43,8 @@ from .work_precision import (
     RTOLS,
     SCENES,
     SCIPY_RTOLS,
+    cvode_overhead,
+    section_cvode,
     section_scene,
     work_precision,
 )
@@ -98,9 +100,12 @@ def page(cfg, env, parts, plots, command, wall_total):
           'classical RK4 at the fixed step, no refinement; its clutch switches are located with '
           'the project\'s event location, which the paper does not describe), and scipy '
           '`solve_ivp` RK45, DOP853, Radau, LSODA with terminal events on the same right-hand '
-          'side (cvt_ros/solver/reference.py); atol = 1e-2·rtol everywhere. A scipy setting '
+          'side (cvt_ros/solver/reference.py), and **SUNDIALS CVODE** BDF and Adams (its '
+          'variable-order multistep methods with their own root finding) driven the same way '
+          '(cvt_ros/solver/cvode.py); atol = 1e-2·rtol everywhere. A baseline setting '
           f'whose run is predicted (from the two looser ones) to take more than {cfg.budget:g} s '
           'is skipped, with all tighter ones.', '']
+    L += section_cvode(parts['cvode'], cfg)
     L += [f"Spans: {', '.join(f'{r.name} {r.duration:g} s' for r in results)}"
           + (' (the stiff shaft shorter: scipy needs ~10 s per simulated second there at '
              'tight tolerances).' if any(r.name == 'stiff_shaft' for r in results) else '.'), '']
@@ -145,6 +150,7 @@ class Config:
     stiffness_span: float
     sweep_span: float
     warm: bool = True
+    skipped: list = field(default_factory=list)   # one line per method family left out
 
     def duration_for(self, name):
         return self.durations[name]
@@ -169,7 +175,8 @@ def parse_args(argv):
                     metavar='METHOD', help=f"methods (default all: {' '.join(METHOD_BY_KEY)})")
     ap.add_argument('--duration', type=float, default=None,
                     help='simulated span of every work-precision scene [s]')
-    ap.add_argument('--rtols', nargs='+', type=float, default=None, help='project rtol sweep')
+    ap.add_argument('--rtols', nargs='+', type=float, default=None,
+                    help='rtol sweep of the project and CVODE')
     ap.add_argument('--scipy-rtols', nargs='+', type=float, default=None,
                     help='scipy rtol sweep')
     ap.add_argument('--steps', nargs='+', type=float, default=None,
@@ -244,10 +251,11 @@ def main(argv=None):
 
     env = environment()
     t0 = time.perf_counter()
-    parts = dict.fromkeys(SECTIONS + ('default', 'steady_load'))
+    parts = dict.fromkeys(SECTIONS + ('default', 'steady_load', 'cvode'))
     parts['work'] = []
     if 'work' in a.sections:
         parts['work'] = work_precision(cfg, log)
+        parts['cvode'] = cvode_overhead(cfg, log)
         parts['default'] = default_settings(cfg, parts['work'], log)
     if 'steady' in a.sections:
         load0 = os.getloadavg()[0]

@@ -1,9 +1,11 @@
-"""One measured run: the project's simulator or a scipy baseline, timed, with its end state.
+"""One measured run: the project's simulator or a scipy / CVODE baseline, timed, with its end
+state.
 
-Shared by every benchmark: ``run_project`` / ``run_scipy`` return an Outcome (final φ4, ω4, the
-switch times, wall time, cost); ``timed`` repeats a run and keeps the minimum wall time;
-``run_watched`` runs the simulator in a child process so that a run which hangs in compiled code
-(it cannot be interrupted in-process) is reported instead of stopping the benchmark.
+Shared by every benchmark: ``run_project`` / ``run_scipy`` / ``run_cvode`` return an Outcome
+(final φ4, ω4, the switch times, wall time, cost); ``timed`` repeats a run and keeps the minimum
+wall time; ``run_watched`` runs the simulator in a child process so that a run which hangs in
+compiled code (it cannot be interrupted in-process) is reported instead of stopping the
+benchmark.
 """
 import math
 import multiprocessing
@@ -13,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..solver import hybrid as H
+from ..solver.cvode import solve_cvode
 from ..solver.output import COL
 from ..solver.reference import solve_reference
 from ..solver.simulator import Simulator
@@ -27,7 +30,7 @@ class Outcome:
     omega4: float
     switches: list
     wall: float
-    work: int = 0              # steps (project) or RHS evaluations (scipy)
+    work: int = 0              # steps (project) or RHS evaluations (scipy, CVODE)
     energy: float = math.nan   # relative energy residual (project)
     h: float = math.nan        # effective fixed step (rk4)
     rejected: int = 0          # rejected steps (project dopri5)
@@ -49,6 +52,13 @@ def run_project(values, duration):
 
 def run_scipy(values, duration, method, rtol):
     r = solve_reference(values, duration, method=method, rtol=rtol, atol=rtol * 1e-2)
+    if r.t < duration * (1.0 - 1e-12):
+        raise RuntimeError(f"stopped at t = {r.t:.6g} s")
+    return Outcome(float(r.y[6]), float(r.y[7]), list(r.switch_times), r.wall_time, r.nfev)
+
+
+def run_cvode(values, duration, method, rtol):
+    r = solve_cvode(values, duration, method=method, rtol=rtol, atol=rtol * 1e-2)
     if r.t < duration * (1.0 - 1e-12):
         raise RuntimeError(f"stopped at t = {r.t:.6g} s")
     return Outcome(float(r.y[6]), float(r.y[7]), list(r.switch_times), r.wall_time, r.nfev)

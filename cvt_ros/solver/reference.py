@@ -27,16 +27,34 @@ class ReferenceResult:
     samples: np.ndarray = None   # state rows at t_eval (if given)
 
 
+def initial_state(values, start=None):
+    """(P, ACT, t, y, mode) to start from: the scene's consistent initial state, or the state of
+    the Simulator ``start`` at its time; y is a copy."""
+    sim = start if start is not None else Simulator(values)  # consistent state and mode
+    return sim.P, sim.ACT, sim.t, sim.y.copy(), int(sim.ms[0])
+
+
+def next_mode(t, y, mode, P, ACT, dy, aux, scratch):
+    """The automaton's reset map at a located root of ``mode``'s guard (physics/clutch.py), as
+    the compiled solver applies it: the new mode, or None when the clutch does not switch (the
+    twist rule keeps a clutch closed that cannot open; a grazing contact does not engage)."""
+    if mode == L.ENGAGED:
+        if uses_twist_release(P):
+            rhs(t, y, L.DISENGAGED, P, ACT, dy, aux)
+            if aux[L.AUX_SLIP_RATE] < 0.0:
+                return None
+        return L.DISENGAGED
+    if clutch_engages(t, y, P, ACT, dy, aux, scratch):
+        return L.ENGAGED
+    return None
+
+
 def solve_reference(values, t_end, method='DOP853', rtol=1e-12, atol=1e-14, t_eval=None,
                     max_switches=100000, start=None):
     """Integrate a scene from its initial state (or from the state of the Simulator ``start``,
     at its time) to t_end [s] with scipy; returns the final state, the switch times and modes,
     and the number of RHS evaluations."""
-    sim = start if start is not None else Simulator(values)  # consistent state and mode
-    P, ACT = sim.P, sim.ACT
-    y = sim.y.copy()
-    mode = int(sim.ms[0])
-    t = sim.t
+    P, ACT, t, y, mode = initial_state(values, start)
     dy = np.empty(L.N_STATE)
     aux = np.empty(L.N_AUX)
     scratch = np.empty(L.N_STATE)
@@ -80,17 +98,10 @@ def solve_reference(values, t_end, method='DOP853', rtol=1e-12, atol=1e-14, t_ev
         t = t_new
         if sol.status != 1:
             break
-        # the automaton's reset map (physics/clutch.py), applied as the compiled solver does
-        if mode == L.ENGAGED:
-            if uses_twist_release(P):
-                rhs(t, y, L.DISENGAGED, P, ACT, dy, aux)
-                if aux[L.AUX_SLIP_RATE] < 0.0:
-                    continue
-            mode = L.DISENGAGED
-        elif clutch_engages(t, y, P, ACT, dy, aux, scratch):
-            mode = L.ENGAGED
-        else:
-            continue  # grazing contact: no switch
+        new = next_mode(t, y, mode, P, ACT, dy, aux, scratch)
+        if new is None:
+            continue
+        mode = new
         project(t, y, mode, P, ACT)
         result.switch_times.append(t)
         result.switch_modes.append(mode)
