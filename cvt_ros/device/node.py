@@ -23,7 +23,6 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.callback_groups import CallbackGroup
 from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import InvalidHandle, ParameterNotDeclaredException
-from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rosgraph_msgs.msg import Clock as ClockMsg
@@ -49,9 +48,7 @@ from .descriptors import (
 )
 from .diagnostics import Reporter
 from .loop import REALTIME_POLICY, RunLoop
-
-RCLError = _rclpy.RCLError
-TAKE_LIMIT = 1000              # command messages the loop takes per subscription and step
+from .subscription_wait import TAKE_LIMIT, SubscriptionWait
 
 CRANK = 'linkage.crank_length'
 GEOMETRY = {'linkage.rocker_length', 'linkage.coupler_length', 'linkage.pivot_distance'}
@@ -146,11 +143,8 @@ class CvtSimNode(Node):
                                        self.crank_length_cmd_subscription,
                                        self.joint_commands_subscription)
         # the loop thread's own wait: the command subscriptions and a guard to wake it
-        with self.context.handle:
-            self._wake_guard = _rclpy.GuardCondition(self.context.handle)
-            self._wait_set = _rclpy.WaitSet(len(self._command_subscriptions), 1, 0, 0, 0, 0,
-                                            self.context.handle)
-        self._command_pointers = [s.handle.pointer for s in self._command_subscriptions]
+        self._command_wait = SubscriptionWait(self.context, self._command_subscriptions,
+                                              TAKE_LIMIT)
         self.reset_service = self.create_service(Trigger, '~/reset', self.reset_callback)
         self.pause_service = self.create_service(SetBool, '~/pause', self.pause_callback)
         self.step_service = self.create_service(Trigger, '~/step', self.step_callback)
@@ -387,42 +381,11 @@ class CvtSimNode(Node):
         ``wake()``; hand every message that arrived to its subscription's callback, load
         commands first (a disturbance that came with a crank command acts in its period), at most
         TAKE_LIMIT per subscription. True if any came."""
-        subs = self._command_subscriptions
-        wait_set = self._wait_set
-        try:
-            with self.context.handle, self._wake_guard, subs[0].handle, subs[1].handle, \
-                    subs[2].handle:
-                wait_set.clear_entities()
-                for sub in subs:
-                    wait_set.add_subscription(sub.handle)
-                wait_set.add_guard_condition(self._wake_guard)
-                wait_set.wait(int(timeout_s * 1e9))
-                ready = wait_set.get_ready_entities('subscription')
-        except (InvalidHandle, RCLError):   # shutting down
-            return False
-        if not ready:
-            return False
-        for sub, pointer in zip(subs, self._command_pointers, strict=True):
-            if pointer not in ready:
-                continue
-            for _ in range(TAKE_LIMIT):
-                try:
-                    with sub.handle:
-                        taken = sub.handle.take_message(sub.msg_type, sub.raw)
-                except InvalidHandle:   # shutting down
-                    return False
-                if taken is None:
-                    break
-                sub.callback(*taken)
-        return True
+        return self._command_wait.wait(timeout_s)
 
     def wake(self):
         """Interrupt the loop thread's wait_commands (a request, a setting, stop)."""
-        try:
-            with self._wake_guard:
-                self._wake_guard.trigger_guard_condition()
-        except InvalidHandle:
-            pass
+        self._command_wait.wake()
 
     # ------------------------------------------------------------------ services
     def reset_callback(self, request, response):

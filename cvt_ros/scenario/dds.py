@@ -147,19 +147,25 @@ class DdsPlant:
         from std_msgs.msg import Bool, Float64
 
         from .. import interface
+        from ..device.subscription_wait import SubscriptionWait
         self._Float64 = Float64
         self.context = Context()
         rclpy.init(context=self.context, domain_id=self.lease.domain)
         self.node = rclpy.create_node('cvt_scenario_harness', context=self.context)
         self.samples = []          # (ns, msg) of state messages not yet taken
         self.switch_states = []    # clutch_engaged values not yet taken
-        self.node.create_subscription(JointState, STATE, self.samples.append,
-                                      interface.state_qos())
+        state = self.node.create_subscription(JointState, STATE, self.samples.append,
+                                              interface.state_qos())
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
         every = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
                            durability=DurabilityPolicy.VOLATILE)   # each message is a switch
-        self.node.create_subscription(Bool, interface.CLUTCH_ENGAGED,
-                                      lambda m: self.switch_states.append(bool(m.data)), every)
+        clutch = self.node.create_subscription(
+            Bool, interface.CLUTCH_ENGAGED, lambda m: self.switch_states.append(bool(m.data)),
+            every)
+        # waiting for a sample: on these two alone, not through an executor pass (a lockstep
+        # period is one round trip; the executor's pass would be most of it). Switches first:
+        # those published before a sample are taken with it.
+        self._sample_wait = SubscriptionWait(self.context, (clutch, state))
         self.crank_publisher = self.node.create_publisher(Float64, interface.CRANK_LENGTH_CMD,
                                                           interface.command_qos())
         self._live = False
@@ -172,7 +178,9 @@ class DdsPlant:
         self._sent = None
         self._engaged = None
 
-    def _spin_until(self, done, timeout, what):
+    def _spin_until(self, done, timeout, what, samples_only=False):
+        """Serve ROS until ``done()`` (``samples_only``: take only the node's samples and
+        switches, on their own wait set; else spin the executor: services, parameters)."""
         end = time.monotonic() + timeout
         while not done():
             if self.proc.poll() is not None:
@@ -183,7 +191,10 @@ class DdsPlant:
                                f"{self.controller_proc.returncode}) while waiting for {what}")
             if time.monotonic() > end:
                 raise DdsError(f"no {what} within {timeout:g} s:\n{self.node_log()}")
-            self.executor.spin_once(timeout_sec=0.05)
+            if samples_only:
+                self._sample_wait.wait(0.05)
+            else:
+                self.executor.spin_once(timeout_sec=0.05)
 
     def node_log(self, lines=15):
         self.log.flush()
@@ -196,7 +207,7 @@ class DdsPlant:
         a real-time controller skips what it was too slow for; ``skips_periods``)."""
         self._spin_until(lambda: any(self._ns(m) > self._last_ns for m in self.samples),
                          PERIOD_TIMEOUT_S if self._last_ns >= 0 else START_TIMEOUT_S,
-                         'sample from cvt_node')
+                         'sample from cvt_node', samples_only=True)
         msg = max(self.samples, key=self._ns)     # realtime: the newest; lockstep: the next
         self.samples.clear()
         if self._order is None:
