@@ -128,8 +128,8 @@ class CvtSimNode(Node):
         self._sample_handles = (self.joint_states_publisher.handle, self.state_publisher.handle,
                                 self.clock_publisher.handle)
         self._command_group = _CommandGroup()
-        # the load subscription first: rclpy's executor runs ready callbacks in creation order,
-        # so a disturbance that arrived with a crank command acts in that command's period
+        # the load subscription first: the loop's wait takes ready messages in this order, so a
+        # disturbance that arrived with a crank command acts in that command's period
         self.load_torque_cmd_subscription = self.create_subscription(
             Float64, interface.LOAD_TORQUE_CMD, self.load_torque_cmd_callback,
             interface.command_subscription_qos(), callback_group=self._command_group)
