@@ -13,7 +13,9 @@ Cases (each ``cvt_node`` in its own process and ROS domain, discovery limited to
   another process (subscribes ``state``, publishes ``crank_length_cmd``: docs/lockstep.md) at a
   1 ms and a 10 ms control period; simulated s per wall s of the round trips, CPU of both
   processes. Two controllers: the docs' example as written (rclpy.spin, a default Node), and the
-  same law in a lean node (no parameter services, Fast DDS synchronous publication).
+  same law in a lean node (no parameter services, Fast DDS synchronous publication) whose thread
+  waits on its state subscription itself (``cvt_ros.device.subscription_wait``, docs/lockstep.md)
+  instead of an executor pass per sample.
 * ``fast``: ``time_mode fast`` at 1 kHz and 100 Hz publishing, a subscriber to joint_states and
   /clock in another process; simulated s per wall s and the node's CPU (share of one core).
 * ``realtime``: 1 kHz, 10 s (``--seconds`` × 2): share of periods published on time (less than
@@ -184,6 +186,7 @@ def controller_main(argv):
         def state_callback(self, msg):
             if self.start is None:
                 self.start = (time.perf_counter(), time.process_time())
+                print('started', flush=True)   # the bench takes the node's CPU from here
             error = PI_TARGET - msg.velocity[3]
             self.integral += error * dt
             crank = min(max(0.04 + PI_KP * error + PI_KI * self.integral, 0.0), 0.09)
@@ -195,7 +198,13 @@ def controller_main(argv):
     rclpy.init()
     node = Controller()
     try:
-        rclpy.spin(node)
+        if lean:   # its own wait on the one subscription: no executor pass per sample
+            from ..device.subscription_wait import SubscriptionWait
+            wait = SubscriptionWait(node.context, [node.state_subscription])
+            while True:
+                wait.wait(1.0)
+        else:
+            rclpy.spin(node)
     except SystemExit:
         pass
     wall, cpu = time.perf_counter() - node.start[0], time.process_time() - node.start[1]
@@ -215,14 +224,20 @@ def lockstep(seconds, period, lean):
         periods = int(round(seconds / period))
         cmd = [sys.executable, '-m', 'cvt_ros.bench.node', '--controller', str(periods),
                repr(period), 'lean' if lean else 'docs']
-        cpu0 = node.cpu()
-        out = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)
+        controller = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE,
+                                      stderr=subprocess.PIPE, text=True)
+        cpu0 = math.nan
+        for line in controller.stdout:   # the node's CPU from the first round trip on
+            if line.strip() == 'started':
+                cpu0 = node.cpu()
+                break
+        rest, err = controller.communicate(timeout=600)
         node_cpu = node.cpu() - cpu0
     finally:
         node.close()
-    lines = [ln for ln in out.stdout.splitlines() if ln.startswith('{')]
+    lines = [ln for ln in rest.splitlines() if ln.startswith('{')]
     if not lines:
-        raise RuntimeError(f"the controller gave no result: {out.stderr[-500:]}")
+        raise RuntimeError(f"the controller gave no result: {err[-500:]}")
     r = json.loads(lines[-1])
     r.update(rtf=r['periods'] * period / r['wall'], round_trip=r['wall'] / r['periods'],
              node_cpu=node_cpu / r['wall'], controller_cpu=r['cpu'] / r['wall'])
@@ -383,8 +398,8 @@ def run(options, out):
         for period in (1e-3, 1e-2):
             for lean in (False, True):
                 r = lockstep(max(s, 2.0) * (1 if period < 5e-3 else 5), period, lean)
-                who = ('lean rclpy node, synchronous publication' if lean
-                       else 'docs/lockstep.md example (rclpy.spin)')
+                who = ('lean rclpy node waiting on its own wait set, synchronous publication'
+                       if lean else 'docs/lockstep.md example (rclpy.spin)')
                 out(f"| {period * 1e3:g} ms | {who} | {r['rtf']:.2f}× | "
                     f"{r['round_trip'] * 1e6:.0f} | {_pct(r['node_cpu'])} | "
                     f"{_pct(r['controller_cpu'])} |")
