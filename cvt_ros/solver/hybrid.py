@@ -266,6 +266,34 @@ def _modal_jerk_bound(LIN, W):
 
 
 @inline_kernel
+def _slip_floor(h, g0, g1, LIN, W, Cv):
+    """A lower bound of the slip ω3 − v over a whole split step [t, t+h] [rad/s], from the exact
+    output's modes (output_exact.py) and the rocker speed's polynomial Cv: the modes faster than
+    the step (|λ|·h > 1: the shaft's ringing) by their amplitude |a_k|·max(1, e^{Re λ_k·h}), the
+    rest (smooth over the step) by the chord between the ends less h²/8·max|f''|. When it stays
+    clear of zero no crossing or dip can hide in the step, and its dense watch is skipped."""
+    f0 = g0
+    f1 = g1
+    amp = 0.0
+    curv = 0.0
+    for k in range(3):
+        lam = LIN[0, k]
+        if lam == 0.0:
+            continue   # the rigid-body mode: ω3 linear in τ, no curvature
+        a = LIN[2, k] * (W[0, k] + W[1, k] / lam)
+        grow = max(1.0, math.exp(lam.real * h))
+        if abs(lam) * h > 1.0:
+            f0 -= a.real
+            f1 -= (a * np.exp(lam * h)).real
+            amp += abs(a) * grow
+        else:
+            curv += abs(a) * abs(lam) ** 2 * grow * h * h
+    for k in range(2, N_POLY):
+        curv += k * (k - 1) * abs(Cv[k])   # |d²v/dθ²| ≤ Σ k(k−1)|c_k|
+    return min(f0, f1) - amp - curv / 8.0
+
+
+@inline_kernel
 def _poly_rate(C, x, h):
     """d/dt of the polynomial C(θ) over a step h, at θ = x."""
     v = 0.0
@@ -398,6 +426,19 @@ def _split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arm
         if h_out <= 0.0:
             h_out = initial_step(OUTPUT, t, z, mode, P, ACT, Ko[0], rtol, atol, ztmp, dytmp,
                                  ERR_OUTPUT)
+    if exact and armed and g0 > 0.0:
+        output_at(h, zs, P, LIN, W, z_new, True)
+        g1 = z_new[Z_OMEGA3] - poly_value(Cv, 1.0)
+        gtol = SLIP_TOLERANCE * (1.0 + abs(Cv[0]) + abs(z[Z_OMEGA3]) + abs(g1) + abs(g0))
+        if _slip_floor(h, g0, g1, LIN, W, Cv) > 4.0 * gtol:
+            # the usual free-running step: no catch possible anywhere in it
+            counters[C_SUBSTEPS] += 1
+            if _due(grid, counters, t1):
+                _emit(True, exact, DOPRI5, t, h, y, y, K, t, h, z, clock, mode, P, ACT, grid,
+                      out, counters, t1, ycomb, ztmp, dytmp, auxtmp)
+            for i in range(N_OUTPUT):
+                y_new[OUTPUT_STATES[i]] = z_new[i]
+            return t1, _NO_EVENT, g1, armed
     jerk4 = _modal_jerk_bound(LIN, W) if exact else 0.0
     v4 = 24.0 * abs(Cv[4]) / h ** 4   # bound of the rocker speed's 4th derivative [rad/s⁵]
     tau = t
