@@ -136,6 +136,12 @@ E_VALUE = 3
 E_LATE = 4   # 1.0: switched because the guard was found beyond its band (possibly missed)
 N_EVENT_COLUMNS = 5
 
+# step-size proposals h_io carried between calls
+H_MAIN = 0
+H_OUTPUT = 1       # the open output's own clock
+H_RESTART = 2      # + mode: cap of the first step after a switch into that mode (≤ 0: none yet)
+N_PROPOSALS = 4
+
 MAX_EVENTS_AT_ONE_TIME = 8
 EXACT_PHASE_STEP = 0.75  # [rad] of the output's fastest mode between two looks at the slip
 PI_BETA = 0.04           # Hairer's DOPRI5: h·err^−(0.2 − 0.75β)·err_old^β
@@ -422,7 +428,7 @@ def _split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arm
     else:
         output_rhs(z, P, Ko[0])
         dw3_0 = Ko[0, Z_OMEGA3]
-        h_out = h_io[1]
+        h_out = h_io[H_OUTPUT]
         if h_out <= 0.0:
             h_out = initial_step(OUTPUT, t, z, mode, P, ACT, Ko[0], rtol, atol, ztmp, dytmp,
                                  ERR_OUTPUT)
@@ -533,7 +539,7 @@ def _split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arm
             for i in range(N_OUTPUT):
                 y_new[OUTPUT_STATES[i]] = z_new[i]
             if not exact:
-                h_io[1] = h_out
+                h_io[H_OUTPUT] = h_out
             return t_ev, fire, g1, armed
         if _due(grid, counters, t1 if last else tau + hs):
             _emit(True, exact, DOPRI5, t, h, y, y, K, tau, hs, z, clock, mode, P, ACT, grid, out,
@@ -552,7 +558,7 @@ def _split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arm
     if exact:
         output_at(h, zs, P, LIN, W, z, True)  # with the work terms
     else:
-        h_io[1] = h_out
+        h_io[H_OUTPUT] = h_out
     for i in range(N_OUTPUT):
         y_new[OUTPUT_STATES[i]] = z[i]
     return t1, fire, g0, armed
@@ -689,8 +695,8 @@ def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, 
 
     y: state (in/out); ms: int64[2] (clutch mode, guard armed); LIN: modal form of the linear
     output subsystem (physics/output_exact.py); S: settings (S_*);
-    h_io: float[2] step-size proposals (main, output sub-steps) carried between calls (≤ 0:
-    choose); grid/out: sample times and rows (counters[C_NEXT_SAMPLE] is the next one to fill);
+    h_io: float[N_PROPOSALS] step-size proposals (H_*) carried between calls (≤ 0: choose);
+    grid/out: sample times and rows (counters[C_NEXT_SAMPLE] is the next one to fill);
     events: rows (t, new mode, kind, value, late); ledger: float[1] kinetic energy lost in late
     (impact) engagements [J].
     Stops early with counters[C_STATUS] ≠ 0 when the event table is full, a step fails or the
@@ -727,7 +733,7 @@ def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, 
     counters[C_RHS] += 1
     g0, _ = clutch_guard(mode, y, K[0], aux0, P)
     armed = armed or abs(g0) > guard_tolerance(mode, y, aux0, P)
-    h_prop = h_io[0]
+    h_prop = h_io[H_MAIN]
     if method == DOPRI5 and h_prop <= 0.0:
         h_prop = initial_step(FULL, t, y, mode, P, ACT, K[0], rtol, atol, ytmp, dytmp,
                               ERR_FULL)
@@ -740,6 +746,7 @@ def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, 
     steps0 = counters[C_STEPS]
     budget = S[S_STEP_BUDGET]
     rejected_last = False
+    restarted = False   # no step accepted yet since the last switch
 
     while t < t_end:
         if counters[C_STEPS] - steps0 > budget:
@@ -799,6 +806,11 @@ def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, 
                                              * err_old ** PI_BETA))
             if rejected_last:
                 factor = min(factor, 1.0)
+            if restarted and not clipped:
+                # the cap of the first step after the next switch into this mode
+                h_io[H_RESTART + mode] = h * (MAX_FACTOR if err == 0.0 else min(
+                    MAX_FACTOR, max(MIN_FACTOR, SAFETY * err ** DP_ERROR_EXPONENT)))
+            restarted = False
             err_old = max(err, ERR_OLD_START)
             rejected_last = False
         elif not finite_state(y_new):
@@ -900,11 +912,17 @@ def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, 
         armed = ev_kind != KIND_GRAZE and abs(g0) > guard_tolerance(mode, y, aux0, P)
         if method == DOPRI5 and ev_kind != KIND_GRAZE:
             # a fresh start in the new mode: its dynamics differ (the shaft's twist mode
-            # joins or leaves), so the old proposal would be rejected or wasted
+            # joins or leaves), so the old proposal would be rejected or wasted. The
+            # Hairer–Nørsett–Wanner estimate cannot see a stiff mode that the switch has not
+            # excited yet: it is capped by the first step accepted after the last switch into
+            # this mode, resized by its error (a periodic run's switches repeat their conditions)
             h_new = initial_step(FULL, t, y, mode, P, ACT, K[0], rtol, atol, ytmp, dytmp,
                                  ERR_FULL)
             counters[C_RHS] += 1
             h_prop = min(h_new, 4.0 * h) if h_new > 0.0 else h_prop
+            if h_io[H_RESTART + mode] > 0.0:
+                h_prop = min(h_prop, h_io[H_RESTART + mode])
+            restarted = True
             err_old = ERR_OLD_START
         if t > t_last_event:
             t_last_event = t
@@ -919,5 +937,5 @@ def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, 
             break
     ms[0] = mode
     ms[1] = 1 if armed else 0
-    h_io[0] = h_prop
+    h_io[H_MAIN] = h_prop
     return t

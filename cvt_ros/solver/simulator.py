@@ -162,7 +162,7 @@ class Simulator:
         w1 = v['motor.speed'] if v['motor.model'] == 'constant_speed' else v['initial.crank_speed']
         self.y[L.OMEGA1] = w1
         self.ms = np.zeros(2, dtype=np.int64)
-        self.h_io = np.zeros(2)
+        self.h_io = np.zeros(H.N_PROPOSALS)
         self.counters = np.zeros(H.N_COUNTERS, dtype=np.int64)
         self.ledger = np.zeros(1)   # kinetic energy lost in impacts [J]
         self.energy_injected = 0.0  # energy put in by live parameter changes [J]
