@@ -419,6 +419,19 @@ def _split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arm
     fast_until = t
     if exact:
         modal_coordinates(z, P, LIN, W)
+        if armed and g0 > 0.0:
+            output_at(h, zs, P, LIN, W, z_new, True)
+            g1 = z_new[Z_OMEGA3] - poly_value(Cv, 1.0)
+            gtol = SLIP_TOLERANCE * (1.0 + abs(Cv[0]) + abs(z[Z_OMEGA3]) + abs(g1) + abs(g0))
+            if _slip_floor(h, g0, g1, LIN, W, Cv) > 4.0 * gtol:
+                # the usual free-running step: no catch possible anywhere in it
+                counters[C_SUBSTEPS] += 1
+                if _due(grid, counters, t1):
+                    _emit(True, exact, DOPRI5, t, h, y, y, K, t, h, z, clock, mode, P, ACT, grid,
+                          out, counters, t1, ycomb, ztmp, dytmp, auxtmp)
+                for i in range(N_OUTPUT):
+                    y_new[OUTPUT_STATES[i]] = z_new[i]
+                return t1, _NO_EVENT, g1, armed
         ring = P[P_OUTPUT_RING]
         n_exact = max(1, int(math.ceil(ring * h / EXACT_PHASE_STEP))) if ring > 0.0 else 1
         h_out = h / n_exact
@@ -432,19 +445,6 @@ def _split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arm
         if h_out <= 0.0:
             h_out = initial_step(OUTPUT, t, z, mode, P, ACT, Ko[0], rtol, atol, ztmp, dytmp,
                                  ERR_OUTPUT)
-    if exact and armed and g0 > 0.0:
-        output_at(h, zs, P, LIN, W, z_new, True)
-        g1 = z_new[Z_OMEGA3] - poly_value(Cv, 1.0)
-        gtol = SLIP_TOLERANCE * (1.0 + abs(Cv[0]) + abs(z[Z_OMEGA3]) + abs(g1) + abs(g0))
-        if _slip_floor(h, g0, g1, LIN, W, Cv) > 4.0 * gtol:
-            # the usual free-running step: no catch possible anywhere in it
-            counters[C_SUBSTEPS] += 1
-            if _due(grid, counters, t1):
-                _emit(True, exact, DOPRI5, t, h, y, y, K, t, h, z, clock, mode, P, ACT, grid,
-                      out, counters, t1, ycomb, ztmp, dytmp, auxtmp)
-            for i in range(N_OUTPUT):
-                y_new[OUTPUT_STATES[i]] = z_new[i]
-            return t1, _NO_EVENT, g1, armed
     jerk4 = _modal_jerk_bound(LIN, W) if exact else 0.0
     v4 = 24.0 * abs(Cv[4]) / h ** 4   # bound of the rocker speed's 4th derivative [rad/s⁵]
     tau = t
