@@ -136,6 +136,12 @@ E_VALUE = 3
 E_LATE = 4   # 1.0: switched because the guard was found beyond its band (possibly missed)
 N_EVENT_COLUMNS = 5
 
+# step-size proposals h_io carried between calls
+H_MAIN = 0
+H_OUTPUT = 1       # the open output's own clock
+H_RESTART = 2      # + mode: cap of the first step after a switch into that mode (≤ 0: none yet)
+N_PROPOSALS = 4
+
 MAX_EVENTS_AT_ONE_TIME = 8
 EXACT_PHASE_STEP = 0.75  # [rad] of the output's fastest mode between two looks at the slip
 PI_BETA = 0.04           # Hairer's DOPRI5: h·err^−(0.2 − 0.75β)·err_old^β
@@ -266,6 +272,34 @@ def _modal_jerk_bound(LIN, W):
 
 
 @inline_kernel
+def _slip_floor(h, g0, g1, LIN, W, Cv):
+    """A lower bound of the slip ω3 − v over a whole split step [t, t+h] [rad/s], from the exact
+    output's modes (output_exact.py) and the rocker speed's polynomial Cv: the modes faster than
+    the step (|λ|·h > 1: the shaft's ringing) by their amplitude |a_k|·max(1, e^{Re λ_k·h}), the
+    rest (smooth over the step) by the chord between the ends less h²/8·max|f''|. When it stays
+    clear of zero no crossing or dip can hide in the step, and its dense watch is skipped."""
+    f0 = g0
+    f1 = g1
+    amp = 0.0
+    curv = 0.0
+    for k in range(3):
+        lam = LIN[0, k]
+        if lam == 0.0:
+            continue   # the rigid-body mode: ω3 linear in τ, no curvature
+        a = LIN[2, k] * (W[0, k] + W[1, k] / lam)
+        grow = max(1.0, math.exp(lam.real * h))
+        if abs(lam) * h > 1.0:
+            f0 -= a.real
+            f1 -= (a * np.exp(lam * h)).real
+            amp += abs(a) * grow
+        else:
+            curv += abs(a) * abs(lam) ** 2 * grow * h * h
+    for k in range(2, N_POLY):
+        curv += k * (k - 1) * abs(Cv[k])   # |d²v/dθ²| ≤ Σ k(k−1)|c_k|
+    return min(f0, f1) - amp - curv / 8.0
+
+
+@inline_kernel
 def _poly_rate(C, x, h):
     """d/dt of the polynomial C(θ) over a step h, at θ = x."""
     v = 0.0
@@ -385,6 +419,19 @@ def _split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arm
     fast_until = t
     if exact:
         modal_coordinates(z, P, LIN, W)
+        if armed and g0 > 0.0:
+            output_at(h, zs, P, LIN, W, z_new, True)
+            g1 = z_new[Z_OMEGA3] - poly_value(Cv, 1.0)
+            gtol = SLIP_TOLERANCE * (1.0 + abs(Cv[0]) + abs(z[Z_OMEGA3]) + abs(g1) + abs(g0))
+            if _slip_floor(h, g0, g1, LIN, W, Cv) > 4.0 * gtol:
+                # the usual free-running step: no catch possible anywhere in it
+                counters[C_SUBSTEPS] += 1
+                if _due(grid, counters, t1):
+                    _emit(True, exact, DOPRI5, t, h, y, y, K, t, h, z, clock, mode, P, ACT, grid,
+                          out, counters, t1, ycomb, ztmp, dytmp, auxtmp)
+                for i in range(N_OUTPUT):
+                    y_new[OUTPUT_STATES[i]] = z_new[i]
+                return t1, _NO_EVENT, g1, armed
         ring = P[P_OUTPUT_RING]
         n_exact = max(1, int(math.ceil(ring * h / EXACT_PHASE_STEP))) if ring > 0.0 else 1
         h_out = h / n_exact
@@ -394,7 +441,7 @@ def _split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arm
     else:
         output_rhs(z, P, Ko[0])
         dw3_0 = Ko[0, Z_OMEGA3]
-        h_out = h_io[1]
+        h_out = h_io[H_OUTPUT]
         if h_out <= 0.0:
             h_out = initial_step(OUTPUT, t, z, mode, P, ACT, Ko[0], rtol, atol, ztmp, dytmp,
                                  ERR_OUTPUT)
@@ -492,7 +539,7 @@ def _split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arm
             for i in range(N_OUTPUT):
                 y_new[OUTPUT_STATES[i]] = z_new[i]
             if not exact:
-                h_io[1] = h_out
+                h_io[H_OUTPUT] = h_out
             return t_ev, fire, g1, armed
         if _due(grid, counters, t1 if last else tau + hs):
             _emit(True, exact, DOPRI5, t, h, y, y, K, tau, hs, z, clock, mode, P, ACT, grid, out,
@@ -511,7 +558,7 @@ def _split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arm
     if exact:
         output_at(h, zs, P, LIN, W, z, True)  # with the work terms
     else:
-        h_io[1] = h_out
+        h_io[H_OUTPUT] = h_out
     for i in range(N_OUTPUT):
         y_new[OUTPUT_STATES[i]] = z[i]
     return t1, fire, g0, armed
@@ -648,8 +695,8 @@ def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, 
 
     y: state (in/out); ms: int64[2] (clutch mode, guard armed); LIN: modal form of the linear
     output subsystem (physics/output_exact.py); S: settings (S_*);
-    h_io: float[2] step-size proposals (main, output sub-steps) carried between calls (≤ 0:
-    choose); grid/out: sample times and rows (counters[C_NEXT_SAMPLE] is the next one to fill);
+    h_io: float[N_PROPOSALS] step-size proposals (H_*) carried between calls (≤ 0: choose);
+    grid/out: sample times and rows (counters[C_NEXT_SAMPLE] is the next one to fill);
     events: rows (t, new mode, kind, value, late); ledger: float[1] kinetic energy lost in late
     (impact) engagements [J].
     Stops early with counters[C_STATUS] ≠ 0 when the event table is full, a step fails or the
@@ -686,7 +733,7 @@ def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, 
     counters[C_RHS] += 1
     g0, _ = clutch_guard(mode, y, K[0], aux0, P)
     armed = armed or abs(g0) > guard_tolerance(mode, y, aux0, P)
-    h_prop = h_io[0]
+    h_prop = h_io[H_MAIN]
     if method == DOPRI5 and h_prop <= 0.0:
         h_prop = initial_step(FULL, t, y, mode, P, ACT, K[0], rtol, atol, ytmp, dytmp,
                               ERR_FULL)
@@ -699,6 +746,7 @@ def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, 
     steps0 = counters[C_STEPS]
     budget = S[S_STEP_BUDGET]
     rejected_last = False
+    restarted = False   # no step accepted yet since the last switch
 
     while t < t_end:
         if counters[C_STEPS] - steps0 > budget:
@@ -758,6 +806,11 @@ def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, 
                                              * err_old ** PI_BETA))
             if rejected_last:
                 factor = min(factor, 1.0)
+            if restarted and not clipped:
+                # the cap of the first step after the next switch into this mode
+                h_io[H_RESTART + mode] = h * (MAX_FACTOR if err == 0.0 else min(
+                    MAX_FACTOR, max(MIN_FACTOR, SAFETY * err ** DP_ERROR_EXPONENT)))
+            restarted = False
             err_old = max(err, ERR_OLD_START)
             rejected_last = False
         elif not finite_state(y_new):
@@ -859,11 +912,17 @@ def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, 
         armed = ev_kind != KIND_GRAZE and abs(g0) > guard_tolerance(mode, y, aux0, P)
         if method == DOPRI5 and ev_kind != KIND_GRAZE:
             # a fresh start in the new mode: its dynamics differ (the shaft's twist mode
-            # joins or leaves), so the old proposal would be rejected or wasted
+            # joins or leaves), so the old proposal would be rejected or wasted. The
+            # Hairer–Nørsett–Wanner estimate cannot see a stiff mode that the switch has not
+            # excited yet: it is capped by the first step accepted after the last switch into
+            # this mode, resized by its error (a periodic run's switches repeat their conditions)
             h_new = initial_step(FULL, t, y, mode, P, ACT, K[0], rtol, atol, ytmp, dytmp,
                                  ERR_FULL)
             counters[C_RHS] += 1
             h_prop = min(h_new, 4.0 * h) if h_new > 0.0 else h_prop
+            if h_io[H_RESTART + mode] > 0.0:
+                h_prop = min(h_prop, h_io[H_RESTART + mode])
+            restarted = True
             err_old = ERR_OLD_START
         if t > t_last_event:
             t_last_event = t
@@ -878,5 +937,5 @@ def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, 
             break
     ms[0] = mode
     ms[1] = 1 if armed else 0
-    h_io[0] = h_prop
+    h_io[H_MAIN] = h_prop
     return t

@@ -62,6 +62,15 @@ DP_P = np.array([
     [0.0, 40617522 / 29380423, -110615467 / 29380423, 69997945 / 29380423],
 ])
 DP_ERROR_EXPONENT = -1.0 / 5.0
+# the tableau as scalars (numba compiles module floats in as constants; b1 = e1 = 0)
+_C1, _C2, _C3, _C4 = DP_C[1:5].tolist()
+(_A10,) = DP_A[1, :1].tolist()
+_A20, _A21 = DP_A[2, :2].tolist()
+_A30, _A31, _A32 = DP_A[3, :3].tolist()
+_A40, _A41, _A42, _A43 = DP_A[4, :4].tolist()
+_A50, _A51, _A52, _A53, _A54 = DP_A[5, :5].tolist()
+_B0, _, _B2, _B3, _B4, _B5 = DP_B.tolist()
+_E0, _, _E2, _E3, _E4, _E5, _E6 = DP_E.tolist()
 SAFETY = 0.9
 MIN_FACTOR = 0.2
 MAX_FACTOR = 10.0
@@ -88,25 +97,34 @@ def dopri5_step(kind, t, y, h, mode, P, ACT, K, y_new, ytmp, aux, rtol, atol, er
     Writes y_new and K[6] = f(t+h, y_new) (FSAL; ``aux`` then holds its auxiliaries) and returns
     the RMS error norm, scaled by atol + rtol·max(|y|, |y_new|), over the components err_idx.
     """
+    # the tableau's stages written out (constant coefficients, no loop over j): LLVM keeps
+    # the coefficients in registers and vectorises over the states
     n = y.shape[0]
-    for s in range(1, 6):
-        for i in range(n):
-            acc = 0.0
-            for j in range(s):
-                acc += DP_A[s, j] * K[j, i]
-            ytmp[i] = y[i] + h * acc
-        evaluate(kind, t + DP_C[s] * h, ytmp, mode, P, ACT, K[s], aux)
     for i in range(n):
-        acc = 0.0
-        for j in range(6):
-            acc += DP_B[j] * K[j, i]
-        y_new[i] = y[i] + h * acc
+        ytmp[i] = y[i] + h * (_A10 * K[0, i])
+    evaluate(kind, t + _C1 * h, ytmp, mode, P, ACT, K[1], aux)
+    for i in range(n):
+        ytmp[i] = y[i] + h * (_A20 * K[0, i] + _A21 * K[1, i])
+    evaluate(kind, t + _C2 * h, ytmp, mode, P, ACT, K[2], aux)
+    for i in range(n):
+        ytmp[i] = y[i] + h * (_A30 * K[0, i] + _A31 * K[1, i] + _A32 * K[2, i])
+    evaluate(kind, t + _C3 * h, ytmp, mode, P, ACT, K[3], aux)
+    for i in range(n):
+        ytmp[i] = y[i] + h * (_A40 * K[0, i] + _A41 * K[1, i] + _A42 * K[2, i]
+                              + _A43 * K[3, i])
+    evaluate(kind, t + _C4 * h, ytmp, mode, P, ACT, K[4], aux)
+    for i in range(n):
+        ytmp[i] = y[i] + h * (_A50 * K[0, i] + _A51 * K[1, i] + _A52 * K[2, i]
+                              + _A53 * K[3, i] + _A54 * K[4, i])
+    evaluate(kind, t + h, ytmp, mode, P, ACT, K[5], aux)
+    for i in range(n):
+        y_new[i] = y[i] + h * (_B0 * K[0, i] + _B2 * K[2, i] + _B3 * K[3, i] + _B4 * K[4, i]
+                               + _B5 * K[5, i])
     evaluate(kind, t + h, y_new, mode, P, ACT, K[6], aux)
     total = 0.0
     for i in err_idx:
-        e = 0.0
-        for j in range(7):
-            e += DP_E[j] * K[j, i]
+        e = (_E0 * K[0, i] + _E2 * K[2, i] + _E3 * K[3, i] + _E4 * K[4, i] + _E5 * K[5, i]
+             + _E6 * K[6, i])
         scale = atol + rtol * max(abs(y[i]), abs(y_new[i]))
         r = h * e / scale
         total += r * r
