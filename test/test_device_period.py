@@ -8,10 +8,9 @@ import numpy as np
 import pytest
 
 from cvt_ros.device.core import Device
-from cvt_ros.physics.drives import plan_profile
 from cvt_ros.scene import load_scene
 from cvt_ros.solver.fidelity import make_simulator
-from cvt_ros.solver.period import PeriodStepper, plan_into
+from cvt_ros.solver.period import PeriodStepper
 
 DT = 1e-3
 CASES = [
@@ -68,18 +67,6 @@ def test_period_stepper_is_the_simulator_to_the_bit(scene, overrides):
     assert np.array_equal(fast.ACT, offline.ACT) and np.array_equal(fast.y, offline.y)
     if overrides.get('model.fidelity') != 'averaged':
         assert switches > 100                            # clutch events inside periods
-
-
-def test_compiled_plan_is_the_python_plan_to_the_bit():
-    rng = np.random.default_rng(1)
-    act = np.empty((5, 4))
-    for _ in range(20000):
-        t0, a0 = rng.uniform(0.0, 100.0), rng.uniform(0.0, 0.1)
-        v0 = rng.choice([0.0, rng.normal(0.0, 0.02)])
-        target = rng.choice([a0, rng.uniform(0.0, 0.1)])
-        rate, accel = 10.0 ** rng.uniform(-4, 0), 10.0 ** rng.uniform(-3, 2)
-        plan_into(act, t0, a0, v0, target, rate, accel, 2.0)
-        assert np.array_equal(act, plan_profile(t0, a0, v0, target, rate, accel))
 
 
 def test_device_equals_the_offline_core_with_the_same_commands():

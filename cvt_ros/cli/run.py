@@ -240,6 +240,7 @@ def warmup_command(args):
     for method in ('dopri5', 'rk4'):
         sim = Simulator({'solver.method': method})
         sim.run(0.01, 1e-3)
+        sim.command_crank_length(0.5 * sim.crank_length_target)   # the actuator's planner
         sim.advance(1e-3)
     print(f"numba kernels compiled and cached in {time.perf_counter() - t0:.1f} s")
     return 0

@@ -10,6 +10,7 @@ steps at the row boundaries, where a'' jumps.
 import math
 
 import numpy as np
+from numba import njit
 
 from .compiled import inline_kernel
 from .layout import (
@@ -88,45 +89,62 @@ def hold_profile(t0, crank_length):
     return act
 
 
-def plan_profile(t0, a0, v0, target, rate_limit, accel_limit):
-    """Time-optimal trapezoidal move from (a0 [m], a'0 [m/s]) at t0 [s] to rest at ``target`` [m].
+@njit(cache=True, error_model='numpy')   # no fast-math: each float operation as written
+def plan_into(ACT, t0, a0, v0, target, rate_limit, accel_limit, two):
+    """Time-optimal trapezoidal move from (a0 [m], a'0 [m/s]) at t0 [s] to rest at ``target`` [m],
+    written into the profile rows ``ACT`` in place (rows beyond the plan: inf).
 
     Phases: (brake to rest if moving away or unable to stop in time) → accelerate or decelerate
-    to the peak speed → cruise → decelerate to rest. Returns the profile rows.
-    """
-    rows = []
+    to the peak speed → cruise → decelerate to rest. ``two`` = 2.0, passed at run time so that
+    ``x ** two`` stays libm's pow (a literal 2 would compile to x·x). Compiled so that the device's
+    one-call period (solver/period.py) plans a command without leaving compiled code."""
+    for i in range(ACT.shape[0]):
+        for j in range(4):
+            ACT[i, j] = np.inf
+    n = 0
     t, a, v = t0, a0, v0
     dist = target - a
     stop = v * v / (2.0 * accel_limit)
     if v != 0.0 and (math.copysign(1.0, v) != math.copysign(1.0, dist) or stop > abs(dist)):
         acc = -math.copysign(accel_limit, v)
         dt = abs(v) / accel_limit
-        rows.append((t, a, v, acc))
+        ACT[n, 0], ACT[n, 1], ACT[n, 2], ACT[n, 3] = t, a, v, acc
+        n += 1
         a, v, t = a + v * dt + 0.5 * acc * dt * dt, 0.0, t + dt
         dist = target - a
     if dist != 0.0:
         sgn = math.copysign(1.0, dist)
         speed = abs(v)
-        peak = min(rate_limit, math.sqrt((2.0 * accel_limit * abs(dist) + speed * speed) / 2.0))
+        root = math.sqrt((2.0 * accel_limit * abs(dist) + speed * speed) / 2.0)
+        peak = root if root < rate_limit else rate_limit     # min(rate_limit, root)
         t_ramp = abs(peak - speed) / accel_limit
         d_ramp = abs(peak * peak - speed * speed) / (2.0 * accel_limit)
         d_brake = peak * peak / (2.0 * accel_limit)
-        d_cruise = max(abs(dist) - d_ramp - d_brake, 0.0)
+        rest = abs(dist) - d_ramp - d_brake
+        d_cruise = 0.0 if 0.0 > rest else rest                # max(rest, 0.0)
         if t_ramp > 0.0:
             acc = sgn * accel_limit * (1.0 if peak > speed else -1.0)
-            rows.append((t, a, v, acc))
-            a, v, t = a + v * t_ramp + 0.5 * acc * t_ramp ** 2, sgn * peak, t + t_ramp
+            ACT[n, 0], ACT[n, 1], ACT[n, 2], ACT[n, 3] = t, a, v, acc
+            n += 1
+            a, v, t = a + v * t_ramp + 0.5 * acc * t_ramp ** two, sgn * peak, t + t_ramp
         if d_cruise > 0.0:
-            rows.append((t, a, v, 0.0))
+            ACT[n, 0], ACT[n, 1], ACT[n, 2], ACT[n, 3] = t, a, v, 0.0
+            n += 1
             t_cruise = d_cruise / peak
             a, t = a + v * t_cruise, t + t_cruise
-        rows.append((t, a, v, -sgn * accel_limit))
+        ACT[n, 0], ACT[n, 1], ACT[n, 2], ACT[n, 3] = t, a, v, -sgn * accel_limit
+        n += 1
         t += peak / accel_limit
-    rows.append((t, target, 0.0, 0.0))  # exactly the target from here on
-    act = np.full((N_ACT_SEGMENTS, 4), np.inf)
-    act[:len(rows)] = rows
+    ACT[n, 0], ACT[n, 1], ACT[n, 2], ACT[n, 3] = t, target, 0.0, 0.0
+
+
+def plan_profile(t0, a0, v0, target, rate_limit, accel_limit):
+    """The profile rows of ``plan_into``'s move, in a new array."""
+    act = np.empty((N_ACT_SEGMENTS, 4))
+    plan_into(act, float(t0), float(a0), float(v0), float(target), float(rate_limit),
+              float(accel_limit), 2.0)
     return act
 
 
 __all__ = ['motor_torque', 'load_torque', 'crank_actuator', 'next_actuator_break',
-           'hold_profile', 'plan_profile', 'ACT_A', 'ACT_V', 'ACT_T', 'ACT_ACC']
+           'hold_profile', 'plan_into', 'plan_profile', 'ACT_A', 'ACT_V', 'ACT_T', 'ACT_ACC']

@@ -15,8 +15,8 @@ It is bit-identical to those Simulator calls (test_period.py checks it over comm
 events, angle rebasing and both simulator classes) and leaves the Simulator in the same state, so
 the two can be mixed. The rare cases — clutch events (their ClutchSwitch objects), a full event
 table, the whole-turn rebase of φ1/φ4, a failed step — are finished in Python by the Simulator's
-own code. ``plan_into`` is ``physics.drives.plan_profile`` compiled without fast-math (its floats
-as Python computes them: the same libm ``pow``), writing the profile into ``sim.ACT`` in place.
+own code. A crank command plans its profile into ``sim.ACT`` in place (``physics.drives.plan_into``,
+the planner Simulator.command_crank_length uses too).
 
 numba caches a kernel keyed on its own file only; the kernels here inline the core's, so their
 cache is dropped when any solver/physics source is newer (``_drop_stale_cache``).
@@ -31,7 +31,7 @@ from numba import njit
 from ..physics import layout as L
 from ..physics.clutch import KIND_GRAZE
 from ..physics.compiled import FASTMATH
-from ..physics.drives import crank_actuator
+from ..physics.drives import crank_actuator, plan_into
 from ..physics.dynamics import rhs
 from . import hybrid as H
 from .averaged import AveragedSimulator, averaged_advance, averaged_sample
@@ -64,50 +64,6 @@ def _drop_stale_cache():
 
 
 _drop_stale_cache()
-
-
-@njit(cache=True, error_model='numpy')   # no fast-math: Python's float operations, in order
-def plan_into(ACT, t0, a0, v0, target, rate_limit, accel_limit, two):
-    """``physics.drives.plan_profile`` into ``ACT`` (rows beyond the plan: inf). ``two`` = 2.0,
-    passed at run time so that ``x ** two`` stays libm's pow, as CPython computes ``x ** 2``."""
-    for i in range(ACT.shape[0]):
-        for j in range(4):
-            ACT[i, j] = np.inf
-    n = 0
-    t, a, v = t0, a0, v0
-    dist = target - a
-    stop = v * v / (2.0 * accel_limit)
-    if v != 0.0 and (math.copysign(1.0, v) != math.copysign(1.0, dist) or stop > abs(dist)):
-        acc = -math.copysign(accel_limit, v)
-        dt = abs(v) / accel_limit
-        ACT[n, 0], ACT[n, 1], ACT[n, 2], ACT[n, 3] = t, a, v, acc
-        n += 1
-        a, v, t = a + v * dt + 0.5 * acc * dt * dt, 0.0, t + dt
-        dist = target - a
-    if dist != 0.0:
-        sgn = math.copysign(1.0, dist)
-        speed = abs(v)
-        root = math.sqrt((2.0 * accel_limit * abs(dist) + speed * speed) / 2.0)
-        peak = root if root < rate_limit else rate_limit     # Python's min(rate_limit, root)
-        t_ramp = abs(peak - speed) / accel_limit
-        d_ramp = abs(peak * peak - speed * speed) / (2.0 * accel_limit)
-        d_brake = peak * peak / (2.0 * accel_limit)
-        rest = abs(dist) - d_ramp - d_brake
-        d_cruise = 0.0 if 0.0 > rest else rest                # Python's max(rest, 0.0)
-        if t_ramp > 0.0:
-            acc = sgn * accel_limit * (1.0 if peak > speed else -1.0)
-            ACT[n, 0], ACT[n, 1], ACT[n, 2], ACT[n, 3] = t, a, v, acc
-            n += 1
-            a, v, t = a + v * t_ramp + 0.5 * acc * t_ramp ** two, sgn * peak, t + t_ramp
-        if d_cruise > 0.0:
-            ACT[n, 0], ACT[n, 1], ACT[n, 2], ACT[n, 3] = t, a, v, 0.0
-            n += 1
-            t_cruise = d_cruise / peak
-            a, t = a + v * t_cruise, t + t_cruise
-        ACT[n, 0], ACT[n, 1], ACT[n, 2], ACT[n, 3] = t, a, v, -sgn * accel_limit
-        n += 1
-        t += peak / accel_limit
-    ACT[n, 0], ACT[n, 1], ACT[n, 2], ACT[n, 3] = t, target, 0.0, 0.0
 
 
 @njit(cache=True, error_model='numpy', fastmath=FASTMATH)
@@ -262,4 +218,4 @@ class PeriodStepper:
         return switches
 
 
-__all__ = ['PeriodStepper', 'plan_into']
+__all__ = ['PeriodStepper']
