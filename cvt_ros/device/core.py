@@ -146,8 +146,7 @@ class Device:
         if not (control_period > 0.0 and math.isfinite(control_period)):
             raise ValueError(f"control period must be a positive finite time, got "
                              f"{control_period!r}")
-        self.values = dict(values)
-        self._bound = grashof_bound(*geometry(self.values))
+        self.values = values
         self._dt = float(control_period)
         self.timing = timing
         self.step_ns = Ring()
@@ -191,6 +190,16 @@ class Device:
     @property
     def t(self):
         return self.sim.t
+
+    @property
+    def values(self):
+        """The device's parameter values (set as a whole: a new geometry, a new bound)."""
+        return self._values
+
+    @values.setter
+    def values(self, new):
+        self._values = dict(new)
+        self._bound = grashof_bound(*geometry(self._values))   # checked on every command
 
     @property
     def bound(self):
@@ -276,19 +285,16 @@ class Device:
             self._next_disturbance = 0
         if physics:
             self.sim.update_parameters(physics)
-            self.stepper.refresh()
             if 'linkage.crank_length' in physics:
                 self.crank_target = new['linkage.crank_length']
             if 'load.torque' in physics:
                 self.load_command = new['load.torque']
         self.values = new
-        self._bound = grashof_bound(*geometry(new))
 
     def set_values(self, new):
         """Take already validated values (the node checked them) without touching the physics
         (the node queues physics changes for its loop: ``update_parameters``)."""
-        self.values = dict(new)
-        self._bound = grashof_bound(*geometry(self.values))
+        self.values = new
 
     # ------------------------------------------------------------------ time
     def advance(self):

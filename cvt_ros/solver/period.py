@@ -11,7 +11,7 @@ with no Python object made per period:
     row = stepper.advance()                 # = sim.advance(dt); sim.sample()  (row is reused)
     stepper.switches, stepper.crank_rate    # the clutch switches inside, the actuator's rate
 
-It is bit-identical to those Simulator calls (test_period.py checks it over commands, clutch
+It is bit-identical to those Simulator calls (test_device_period.py checks it over commands, clutch
 events, angle rebasing and both simulator classes) and leaves the Simulator in the same state, so
 the two can be mixed. The rare cases — clutch events (their ClutchSwitch objects), a full event
 table, the whole-turn rebase of φ1/φ4, a failed step — are finished in Python by the Simulator's
@@ -29,14 +29,13 @@ import numpy as np
 from numba import njit
 
 from ..physics import layout as L
-from ..physics.clutch import KIND_GRAZE
 from ..physics.compiled import FASTMATH
 from ..physics.drives import crank_actuator, plan_into
 from ..physics.dynamics import rhs
 from . import hybrid as H
 from .averaged import AveragedSimulator, averaged_advance, averaged_sample
 from .output import COL, N_COLUMNS, write_sample
-from .simulator import _KIND_NAMES, REBASE_TURNS, ClutchSwitch, SimulationError
+from .simulator import REBASE_TURNS, SimulationError
 from .steppers import RK4
 
 _HERE = os.path.dirname(os.path.abspath(__file__))
@@ -131,8 +130,8 @@ class PeriodStepper:
     ``row``: the sample at the end of the last period (``output.COLUMNS``; one buffer, rewritten
     by each ``advance``); ``switches``: the clutch switches inside it (ClutchSwitch, grazing
     contacts included, as Simulator.advance returns them); ``crank_rate``: the actuator's rate
-    at its end [m/s]. Call ``refresh()`` after anything replaced the Simulator's arrays
-    (``reset``, ``update_parameters``, ``Simulator.command_crank_length``).
+    at its end [m/s]. It reads the Simulator's arrays and values at each call, so a reset,
+    a parameter change or a Simulator call in between needs nothing.
     """
 
     def __init__(self, sim, dt):
@@ -146,23 +145,17 @@ class PeriodStepper:
         self._ysample = np.empty(L.N_STATE)
         self._act = np.empty(2)
         self.averaged = isinstance(sim, AveragedSimulator)
-        self.refresh()
-
-    def refresh(self):
-        """Take the Simulator's present arrays and settings."""
-        sim = self.sim
-        v = sim.values
-        self._limits = (v['linkage.crank_rate_limit'], v['linkage.crank_accel_limit'])
 
     # ------------------------------------------------------------------ commands
     def command_crank_length(self, target):
         """Simulator.command_crank_length(target) for a target the caller has checked against
         the Grashof bound (the device does): the profile planned into ``sim.ACT`` in place."""
         sim = self.sim
+        v = sim.values
         act = self._act
         actuator_now(sim.t, sim.ACT, act)
-        plan_into(sim.ACT, sim.t, act[0], act[1], float(target), self._limits[0],
-                  self._limits[1], 2.0)
+        plan_into(sim.ACT, sim.t, act[0], act[1], float(target), v['linkage.crank_rate_limit'],
+                  v['linkage.crank_accel_limit'], 2.0)
         sim.crank_length_target = float(target)
 
     # ------------------------------------------------------------------ time
@@ -186,7 +179,7 @@ class PeriodStepper:
             self.switches = NO_SWITCHES
             self.crank_rate = rate
             return self.row
-        self.switches = self._events(sim)
+        self.switches = sim._take_events()
         if code == EVENTS:
             self.crank_rate = rate
             return self.row
@@ -200,22 +193,6 @@ class PeriodStepper:
         self.row[:] = sim.sample()
         self.crank_rate = float(crank_actuator(sim.t, sim.ACT)[1])
         return self.row
-
-    def _events(self, sim):
-        """Simulator._call's bookkeeping of the located events (switch count, late events)."""
-        n_ev = int(sim.counters[H.C_EVENTS])
-        if n_ev == 0:
-            return []
-        rows = sim._events_buf[:n_ev]
-        switches = [ClutchSwitch(float(r[H.E_T]), bool(r[H.E_MODE] == L.ENGAGED),
-                                 _KIND_NAMES[int(r[H.E_KIND])], float(r[H.E_VALUE]))
-                    for r in rows]
-        sim.switch_count += int(np.count_nonzero(rows[:, H.E_KIND] != KIND_GRAZE))
-        late = rows[rows[:, H.E_LATE] > 0.0]
-        if len(late) and sim.first_late_event is None:
-            sim.first_late_event = float(late[0, H.E_T])
-        sim.counters[H.C_EVENTS] = 0
-        return switches
 
 
 __all__ = ['PeriodStepper']

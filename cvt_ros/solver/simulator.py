@@ -301,7 +301,18 @@ class Simulator:
         t = H.advance(self.t, t_end, self.y, self.ms, self.P, self.ACT, self.LIN, self.S,
                       self.h_io, grid, out, self._events_buf, self.counters, self.ledger)
         self.t = t
+        switches = self._take_events()
+        status = int(self.counters[H.C_STATUS])
+        if status in _FAILURES:
+            raise SimulationError(self._failure_text(status, switches))
+        return switches, status
+
+    def _take_events(self):
+        """The clutch events the compiled loop located since the last call, as ClutchSwitch
+        objects; counts the switches, notes the first late event, empties the table."""
         n_ev = int(self.counters[H.C_EVENTS])
+        if n_ev == 0:
+            return []
         rows = self._events_buf[:n_ev]
         # one tolist() rather than four numpy scalars per row (~10 000 switches a run)
         switches = [ClutchSwitch(row[H.E_T], row[H.E_MODE] == L.ENGAGED,
@@ -312,10 +323,7 @@ class Simulator:
         if len(late) and self.first_late_event is None:
             self.first_late_event = float(late[0, H.E_T])
         self.counters[H.C_EVENTS] = 0
-        status = int(self.counters[H.C_STATUS])
-        if status in _FAILURES:
-            raise SimulationError(self._failure_text(status, switches))
-        return switches, status
+        return switches
 
     def _failure_text(self, status, switches):
         text = f"integration failed at t = {self.t:.9g} s: {_FAILURES[status]}"
