@@ -201,18 +201,23 @@ class RunLoop:
 
     def _advance_periods(self, n):
         """Held: advance and publish ``n`` periods (the caller holds the lock)."""
-        device, port, stats = self.device, self.port, self.stats
         for _ in range(n):
-            if device.fault or self.stopping.is_set():
+            if self.device.fault or self.stopping.is_set() or not self._period():
                 return False
-            row = device.advance_row()
-            if row is None:
-                self._report_fault()
-                return False
-            self._publish_events(device.events)
-            port.publish_sample(row, device.crank_rate)
-            stats.samples += 1
-        self.last_row = device.stepper.row
+        return True
+
+    def _period(self):
+        """Advance one period and publish it, switches first (the caller holds the lock);
+        False (fault reported) if the integration failed."""
+        device = self.device
+        row = device.advance_row()
+        if row is None:
+            self._report_fault()
+            return False
+        self._publish_events(device.events)
+        self.port.publish_sample(row, device.crank_rate)
+        self.last_row = row
+        self.stats.samples += 1
         return True
 
     # ------------------------------------------------------------------ requests
@@ -294,24 +299,14 @@ class RunLoop:
 
     def _fast_batch(self):
         """Fast mode: FAST_BATCH periods back to back, commands taken before each."""
-        device, port, stats = self.device, self.port, self.stats
         with self.lock:
             self._flush_ahead()
             for _ in range(FAST_BATCH):
                 if self._queue:
                     self._drain()
-                port.wait_commands(0.0)
-                if not self.running():
+                self.port.wait_commands(0.0)
+                if not self.running() or not self._period():
                     break
-                row = device.advance_row()
-                if row is None:
-                    self._report_fault()
-                    break
-                if device.events:
-                    self._publish_events(device.events)
-                port.publish_sample(row, device.crank_rate)
-                stats.samples += 1
-            self.last_row = device.stepper.row
 
     def _set_thread_priority(self, priority):
         """Loop thread: SCHED_FIFO at ``priority`` (realtime mode), else normal scheduling.
