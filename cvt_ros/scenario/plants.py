@@ -7,12 +7,11 @@ Every back end offers the same five calls, so the harness loop (harness.py) is o
 * ``step()`` → (sample row at the end of the period, clutch switches inside it as (t, engaged));
 * ``close()``.
 
-``OfflinePlant`` drives the core's Simulator directly, one compiled call per period
-(``solver.period.PeriodStepper``: command, ``advance(period)``, ``sample()`` to the bit) — the
-same calls, in the same order, as the device's lockstep loop makes, which is why the two give
-bit-identical traces.
+``OfflinePlant`` drives the core's Simulator directly: commands, then ``advance(period)`` and
+``sample()`` in one compiled call (``solver.period.PeriodStepper``, to the bit) — the same calls,
+in the same order, as the device's lockstep loop makes, which is why the two give bit-identical
+traces.
 """
-from ..physics.linkage import check_crank_length
 from ..solver.fidelity import make_simulator
 from ..solver.period import PeriodStepper
 
@@ -31,9 +30,6 @@ class OfflinePlant:
         self.sim = make_simulator(values)
         self.stepper = PeriodStepper(self.sim, period)
         self.period = period
-        v = self.sim.values
-        self._geometry = (v['linkage.rocker_length'], v['linkage.coupler_length'],
-                          v['linkage.pivot_distance'])
 
     def start(self):
         return self.sim.sample()
@@ -42,8 +38,7 @@ class OfflinePlant:
         self.sim.set_load_torque(torque)
 
     def command_crank_length(self, length):
-        check_crank_length(length, *self._geometry)   # GrashofError, as Simulator's
-        self.stepper.command_crank_length(length)
+        self.sim.command_crank_length(length)   # (the stepper reads the new profile)
 
     def step(self):
         row = self.stepper.advance().copy()   # (the stepper's buffer is rewritten next period)
