@@ -7,13 +7,14 @@ a switch, the present state; wait for commands), and tests may drive it with a p
   ahead while waiting. Deadlines come from the schedule, never from a sleep's end, so there is no
   drift; late samples go out back to back until the schedule is met again; more than
   LAG_LIMIT_NS behind, the backlog is given up and the schedule re-anchored (a resync).
-* ``fast``: as fast as the core and the publishing allow, FAST_BATCH periods per pass.
+* ``fast``: as fast as the core and the publishing allow, FAST_BATCH periods per pass; commands
+  are looked for at most every FAST_POLL_NS of wall time (a look costs more than a period).
 * ``lockstep``: the simulation advances only on ``~/step`` (``step_periods`` each) or by
   ``steps_per_command`` per crank-length command; load commands never advance time.
 
 The loop thread takes every command message itself (``port.wait_commands``: an rcl wait set on
 the command subscriptions, not the executor): while the simulation runs free it polls them at the
-start of each period; while it is held (lockstep, paused, a fault) it blocks on them, so in
+start of a period (every period in realtime, at most every FAST_POLL_NS in fast mode); while it is held (lockstep, paused, a fault) it blocks on them, so in
 lockstep one command message is one wake-up of this thread, which applies it, advances and
 publishes — no hand-over between threads, no executor pass. Services and parameter changes come
 from the executor thread as queued requests (applied at the next period boundary, in arrival
@@ -41,6 +42,10 @@ STATS_PERIOD_NS = 250_000_000  # energy balance / snapshot for diagnostics this 
 WARN_PERIOD_S = 1.0            # throttled warnings: at most one per topic per second
 SERVICE_TIMEOUT_S = 5.0        # a service waits this long for the loop to act
 FAST_BATCH = 20                # fast mode: control periods per pass of the loop (less overhead)
+# fast mode: look for commands at most this often (wall time). A look is an rcl wait with a zero
+# timeout, 20-30 µs with Fast DDS (100 µs at Linux's default timer slack), more than the step of
+# a 1 ms period (~5 µs): polling every period made it most of fast mode's cost.
+FAST_POLL_NS = 1_000_000
 #: What realtime mode does when it cannot keep up (reported in /diagnostics, docs/node.md).
 REALTIME_POLICY = ('catch up: late samples go out back to back with their own stamps; more than '
                    '0.5 s behind: re-anchor, simulation time slips (resyncs, slipped_s)')
@@ -120,6 +125,7 @@ class RunLoop:
         self._anchor_wall_ns = 0
         self._anchor_sim = 0.0
         self._snapshot_ns = 0
+        self._polled_ns = 0         # fast mode: when the commands were last looked for
         self._queue = collections.deque()
         self._queue_lock = threading.Lock()
         self.wake_event = threading.Event()
@@ -298,13 +304,17 @@ class RunLoop:
             self.take_snapshot(now)
 
     def _fast_batch(self):
-        """Fast mode: FAST_BATCH periods back to back, commands taken before each."""
+        """Fast mode: FAST_BATCH periods back to back; requests taken before each, command
+        messages when FAST_POLL_NS of wall time has passed since the last look."""
         with self.lock:
             self._flush_ahead()
             for _ in range(FAST_BATCH):
                 if self._queue:
                     self._drain()
-                self.port.wait_commands(0.0)
+                now = time.monotonic_ns()
+                if now - self._polled_ns >= FAST_POLL_NS:
+                    self._polled_ns = now
+                    self.port.wait_commands(0.0)
                 if not self.running() or not self._period():
                     break
 

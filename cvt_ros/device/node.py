@@ -48,7 +48,7 @@ from .descriptors import (
 )
 from .diagnostics import Reporter
 from .loop import REALTIME_POLICY, RunLoop
-from .subscription_wait import TAKE_LIMIT, SubscriptionWait
+from .subscription_wait import TAKE_LIMIT, RCLError, SubscriptionWait
 
 CRANK = 'linkage.crank_length'
 GEOMETRY = {'linkage.rocker_length', 'linkage.coupler_length', 'linkage.pivot_distance'}
@@ -422,17 +422,30 @@ class CvtSimNode(Node):
         """The present state: latched clutch state, then a sample (start-up, reset); both stay
         latched for late joiners (clutch_engaged, state)."""
         msg = Bool(data=bool(period.row[COL['engaged']]))
-        self.clutch_engaged_publisher.publish(msg)
         self._hand_to_recorder(self._topic['clutch_engaged'], msg,
                                interface.stamp_ns(period.t))
+        self._publish(self.clutch_engaged_publisher, msg)
         self.publish_sample(period.row, period.crank_rate)
 
     def publish_switch(self, event):
         """One clutch switch, at its own simulation time (Bool has no stamp: the switch time is
         in diagnostics as last_switch_time and goes to the recorder with this message)."""
         msg = Bool(data=bool(event.engaged))
-        self.clutch_engaged_publisher.publish(msg)
         self._hand_to_recorder(self._topic['clutch_engaged'], msg, interface.stamp_ns(event.t))
+        self._publish(self.clutch_engaged_publisher, msg)
+
+    def _publish(self, publisher, msg):
+        """Publish, unless the node is shutting down (Ctrl-C took the context down: rcl refuses
+        with RCLError, a destroyed publisher with InvalidHandle). What was computed is recorded
+        before it is published, so a recording never holds a period's switch without its
+        sample."""
+        try:
+            publisher.publish(msg)
+        except InvalidHandle:
+            pass
+        except RCLError:
+            if self.context.ok():
+                raise
 
     def publish_sample(self, row, crank_rate):
         """joint_states, state and /clock of one period's end (``row``: its sample, the
@@ -444,21 +457,26 @@ class CvtSimNode(Node):
         values[_RATE_SLOT] = crank_rate
         values[_FORCE_SLOT] = math.nan   # the actuator's force is not modelled
         data = self._encoder.encode(sec, nanosec, values)
+        clock = interface.clock_cdr(ns) if self._publish_clock else None
         joint_states, state, clock_handle = self._sample_handles
         try:
             with joint_states:
                 joint_states.publish_raw(data)
             with state:
                 state.publish_raw(data)
-            if self._publish_clock:
-                clock = interface.clock_cdr(ns)
+            if clock is not None:
                 with clock_handle:
                     clock_handle.publish_raw(clock)
         except InvalidHandle:   # shutting down
-            return
+            pass
+        except RCLError:
+            # Ctrl-C took the context down: not published, but recorded all the same, as the
+            # period's clutch switches are (a recording ends on a whole period)
+            if self.context.ok():
+                raise
         if self._recorder is not None:
             self._hand_to_recorder(self._topic['joint_states'], data, ns)
-            if self._publish_clock:
+            if clock is not None:
                 self._hand_to_recorder(self._topic['clock'], clock, ns)
         self._published_ns = ns
 
