@@ -99,12 +99,17 @@ def test_the_sample_grid_ends_exactly_at_the_end_time(duration, dt):
 
 
 def test_streamed_samples_equal_kept_samples():
-    blocks = []
+    blocks, located = [], []
     streamed = Simulator(load_scene('paper')).run(2.0, 1e-3, on_samples=blocks.append,
-                                                  keep_samples=False)
+                                                  keep_samples=False, on_switches=located.extend)
     kept = Simulator(load_scene('paper')).run(2.0, 1e-3)
     assert streamed.samples.shape[0] == 0 and len(blocks) > 1
     assert np.array_equal(np.concatenate(blocks), kept.samples)
+    # a streamed run keeps no switch objects either (constant memory), but counts them
+    assert streamed.switches == [] and located == kept.switches
+    switched = [s for s in kept.switches if s.kind != 'graze']
+    assert streamed.switch_count == kept.switch_count == len(switched) > 50
+    assert streamed.graze_count == kept.graze_count == len(kept.switches) - len(switched)
 
 
 def test_a_guard_found_beyond_its_band_is_reported_as_a_possible_missed_event():

@@ -37,7 +37,8 @@ def time_scaling(cfg, log):
         _, peak = tracemalloc.get_traced_memory()
         tracemalloc.stop()
         rows.append({'span': span, 'wall': wall, 'peak': peak, 'samples': count[0],
-                     'switches': len(result.switches), 'rhs': result.diagnostics['rhs_evaluations'],
+                     'switches': result.switch_count + result.graze_count,
+                     'rhs': result.diagnostics['rhs_evaluations'],
                      'energy': result.energy['relative_residual']})
         log(f"scaling: {span:g} s simulated in {wall:.2f} s, peak {peak / 1e6:.1f} MB")
     return rows
@@ -58,7 +59,7 @@ def stiffness_scaling(cfg, log):
             continue
         row.update(status='ok', wall=time.perf_counter() - t0, steps=result.steps,
                    rejected=result.rejected, rhs=result.diagnostics['rhs_evaluations'],
-                   switches=len([s for s in result.switches if s.kind != 'graze']),
+                   switches=result.switch_count,
                    substeps=int(sim.counters[H.C_SUBSTEPS]))
         rows.append(row)
         log(f"scaling: c = {c:g}: {row['wall']:.2f} s for {cfg.stiffness_span:g} s")
@@ -76,7 +77,7 @@ def event_sweep(cfg, log):
                 sim = Simulator(dict(load_scene(name), **changes,
                                      **{'solver.rtol': rtol, 'solver.atol': rtol * 1e-2}))
                 result = sim.run(cfg.sweep_span, 0.01, keep_samples=False)
-                counts.append(len([s for s in result.switches if s.kind != 'graze']))
+                counts.append(result.switch_count)
                 late += result.diagnostics['possible_missed_events']
             rows.append({'scene': name, 'variant': variant, 'counts': counts, 'late': late})
     log(f"event sweep: {len(rows)} scene/variant pairs × {len(SWEEP_RTOLS)} tolerances, "
