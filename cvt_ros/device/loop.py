@@ -16,9 +16,10 @@ The loop thread takes every command message itself (``port.wait_commands``: an r
 the command subscriptions, not the executor): while the simulation runs free it polls them at the
 start of a period (every period in realtime, at most every FAST_POLL_NS in fast mode); while it
 is held (lockstep, paused, a fault) it blocks on them, so in lockstep one command message is one
-wake-up of this thread, which applies it, advances and publishes — no hand-over between threads, no executor pass. Services and parameter changes come
-from the executor thread as queued requests (applied at the next period boundary, in arrival
-order, ``wake()`` interrupts a wait); ``~/step`` advances from the executor thread under ``lock``.
+wake-up of this thread, which applies it, advances and publishes — no hand-over between
+threads, no executor pass. Services and parameter changes come from the executor thread as queued
+requests (applied at the next period boundary, in arrival order, ``wake()`` interrupts a wait);
+``~/step`` advances from the executor thread under ``lock``.
 """
 import collections
 import ctypes
