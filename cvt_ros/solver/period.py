@@ -19,11 +19,9 @@ own code. A crank command plans its profile into ``sim.ACT`` in place (``physics
 the planner Simulator.command_crank_length uses too).
 
 numba caches a kernel keyed on its own file only; the kernels here inline the core's, so their
-cache is dropped when any solver/physics source is newer (``_drop_stale_cache``).
+cache is dropped when any solver/physics source is newer (physics/compiled.py).
 """
-import glob
 import math
-import os
 
 import numpy as np
 from numba import njit
@@ -38,7 +36,6 @@ from .output import COL, N_COLUMNS, write_sample
 from .simulator import REBASE_TURNS, SimulationError
 from .steppers import RK4
 
-_HERE = os.path.dirname(os.path.abspath(__file__))
 _PHI1, _PHI3, _PHI4 = COL['phi1'], COL['phi3'], COL['phi4']
 TWO_PI = 2.0 * math.pi
 
@@ -49,20 +46,6 @@ UNFINISHED = 2    # not sampled: events table full, a failure, or angles to reba
 NO_SWITCHES = ()
 
 
-def _drop_stale_cache():
-    """Delete this module's cached kernels when a solver/physics source is newer than them."""
-    sources = glob.glob(os.path.join(_HERE, '*.py')) + glob.glob(
-        os.path.join(os.path.dirname(_HERE), 'physics', '*.py'))
-    newest = max(os.path.getmtime(p) for p in sources)
-    for path in glob.glob(os.path.join(_HERE, '__pycache__', 'period.*.nb[ic]')):
-        try:
-            if os.path.getmtime(path) < newest:
-                os.remove(path)
-        except OSError:
-            pass
-
-
-_drop_stale_cache()
 
 
 @njit(cache=True, error_model='numpy', fastmath=FASTMATH)
