@@ -435,17 +435,18 @@ class CvtSimNode(Node):
         self._publish(self.clutch_engaged_publisher, msg)
 
     def _publish(self, publisher, msg):
-        """Publish, unless the node is shutting down (Ctrl-C took the context down: rcl refuses
-        with RCLError, a destroyed publisher with InvalidHandle). What was computed is recorded
-        before it is published, so a recording never holds a period's switch without its
-        sample."""
+        """Publish, unless the node is shutting down. What was computed is recorded before it is
+        published, so a recording never holds a period's switch without its sample."""
         try:
             publisher.publish(msg)
-        except InvalidHandle:
-            pass
-        except RCLError:
-            if self.context.ok():
+        except (InvalidHandle, RCLError) as exc:
+            if not self._shutting_down(exc):
                 raise
+
+    def _shutting_down(self, exc):
+        """A publish refused because the node is going down: a destroyed publisher
+        (InvalidHandle), or rcl's refusal (RCLError) once Ctrl-C took the context down."""
+        return isinstance(exc, InvalidHandle) or not self.context.ok()
 
     def publish_sample(self, row, crank_rate):
         """joint_states, state and /clock of one period's end (``row``: its sample, the
@@ -467,12 +468,10 @@ class CvtSimNode(Node):
             if clock is not None:
                 with clock_handle:
                     clock_handle.publish_raw(clock)
-        except InvalidHandle:   # shutting down
-            pass
-        except RCLError:
-            # Ctrl-C took the context down: not published, but recorded all the same, as the
-            # period's clutch switches are (a recording ends on a whole period)
-            if self.context.ok():
+        except (InvalidHandle, RCLError) as exc:
+            # shutting down: not published, but recorded all the same, as the period's clutch
+            # switches are (a recording ends on a whole period)
+            if not self._shutting_down(exc):
                 raise
         if self._recorder is not None:
             self._hand_to_recorder(self._topic['joint_states'], data, ns)

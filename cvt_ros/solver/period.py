@@ -46,8 +46,6 @@ UNFINISHED = 2    # not sampled: events table full, a failure, or angles to reba
 NO_SWITCHES = ()
 
 
-
-
 @njit(cache=True, error_model='numpy', fastmath=FASTMATH)
 def actuator_now(t, ACT, out):
     """out[0], out[1] = the actuator's (a, a') at t, as Simulator.command_crank_length reads it."""
