@@ -14,8 +14,10 @@ eigenvalue λ = 0 needs no special case). φ4 = φ4(0) + ∫ω4.
 Work: the output subsystem's energy E = ½J3·ω3² + ½J4·ω4² + ½c·θ² falls by exactly the load work
 plus the damping loss; one of the two comes in closed form (T·Δφ4 when kv = 0, or 0 when k = 0),
 the other from the balance, so the energy ledger closes to rounding. With both k and kv non-zero,
-the damping loss k·∫(ω3 − ω4)² is taken by composite 8-point Gauss–Legendre on the exact
-solution.
+the damping loss k·∫(ω3 − ω4)² is in closed form too: ω3 − ω4 = Σ_m d_m·w_m with the modal
+coordinates w_m' = λ_m·w_m + wb_m, so it is k·Σ_mn d_m·d_n·∫w_m·w_n, and each ∫w_m·w_n follows from
+d/dt(w_m·w_n) = (λ_m + λ_n)·w_m·w_n + wb_m·w_n + wb_n·w_m (``_pair_integral``; a Taylor form
+where λ_m + λ_n is too small to divide by: the slow rigid-body mode).
 
 This removes the shaft's stiff mode from the solver while the clutch is open: the input subsystem
 steps at its own pace, and the slip is watched on the exact solution.
@@ -45,8 +47,17 @@ from .layout import (
 
 MAX_CONDITION = 1e8   # eigenvector matrix worse than this (near-defective A): integrate instead
 SERIES_LIMIT = 1e-3   # |λτ| below this: Taylor series for e^{λτ}, F1, F2 (error < 1e-16)
-GAUSS_X, GAUSS_W = np.polynomial.legendre.leggauss(8)
-GAUSS_PANEL_PHASE = 1.5  # [rad]: 8 nodes integrate e^{iωt} over 1.5 rad to ~1e-16
+LOSS_SERIES_LIMIT = 0.2  # max|λ|·τ below this: the loss by the power series of the slip in τ
+LOSS_SERIES_TERMS = 13   # (0.2^13/13! < 1e-17)
+PAIR_LIMIT = 1e-2     # |(λ_m + λ_n)·τ| below this: ∫w_m·w_n by series, not by the identity
+PHI1_SERIES = 0.05    # |z| below this: φ1(z) = (e^z − 1)/z by its series (10 terms)
+INV_FACTORIAL = np.array([1.0 / math.factorial(n) for n in range(12)])
+
+
+@inline_kernel
+def _small(z, limit):
+    """|z| < limit for a complex z, without the square root (hypot) of abs()."""
+    return z.real * z.real + z.imag * z.imag < limit * limit
 
 
 def modal_form(P):
@@ -92,6 +103,24 @@ def modal_coordinates(z, P, LIN, W):
 
 
 @inline_kernel
+def _mode_over(tau, LIN, W, m):
+    """Mode m over [0, τ]: (λ, w(0), wb, w(τ), ∫w, e^{λτ})."""
+    lam = LIN[0, m]
+    w0 = W[0, m]
+    wb = W[1, m]
+    lt = lam * tau
+    if _small(lt, SERIES_LIMIT):
+        e = 1.0 + lt * (1.0 + lt * (0.5 + lt * (1.0 / 6.0 + lt / 24.0)))
+        f1 = tau * (1.0 + lt * (0.5 + lt * (1.0 / 6.0 + lt / 24.0)))
+        f2 = tau * tau * (0.5 + lt * (1.0 / 6.0 + lt * (1.0 / 24.0 + lt / 120.0)))
+    else:
+        e = np.exp(lt)
+        f1 = (e - 1.0) / lam
+        f2 = (e - 1.0 - lt) / (lam * lam)
+    return lam, w0, wb, w0 * e + wb * f1, w0 * f1 + wb * f2, e
+
+
+@inline_kernel
 def _modal_state(tau, LIN, W):
     """(x(τ), ∫₀^τ x) as six floats from the modal coordinates W."""
     c0 = 0j
@@ -99,21 +128,11 @@ def _modal_state(tau, LIN, W):
     c2 = 0j
     i2 = 0j
     for k in range(3):
-        lam = LIN[0, k]
-        lt = lam * tau
-        if abs(lt) < SERIES_LIMIT:
-            e = 1.0 + lt * (1.0 + lt * (0.5 + lt * (1.0 / 6.0 + lt / 24.0)))
-            f1 = tau * (1.0 + lt * (0.5 + lt * (1.0 / 6.0 + lt / 24.0)))
-            f2 = tau * tau * (0.5 + lt * (1.0 / 6.0 + lt * (1.0 / 24.0 + lt / 120.0)))
-        else:
-            e = np.exp(lt)
-            f1 = (e - 1.0) / lam
-            f2 = (e - 1.0 - lt) / (lam * lam)
-        ck = W[0, k] * e + W[1, k] * f1
-        c0 += LIN[1, k] * ck
-        c1 += LIN[2, k] * ck
-        c2 += LIN[3, k] * ck
-        i2 += LIN[3, k] * (W[0, k] * f1 + W[1, k] * f2)
+        _, _, _, wk, jk, _ = _mode_over(tau, LIN, W, k)
+        c0 += LIN[1, k] * wk
+        c1 += LIN[2, k] * wk
+        c2 += LIN[3, k] * wk
+        i2 += LIN[3, k] * jk
     return c0.real, c1.real, c2.real, i2.real
 
 
@@ -137,24 +156,113 @@ def output_at(tau, z0, P, LIN, W, z, with_work):
 
 
 @inline_kernel
-def _slip_coefficients(m, LIN, W):
-    """Mode m's part of ω3 − ω4 as d·(w0·e^{λτ} + wb·F1) = A·e^{λτ} + B: (λ, d·w0, d·wb, A, B)."""
-    lam = LIN[0, m]
-    dm = LIN[2, m] - LIN[3, m]
-    a0 = dm * W[0, m]
-    a1 = dm * W[1, m]
-    inv = 1.0 / lam if lam != 0.0 else 0j
-    return lam, a0, a1, a0 + a1 * inv, -a1 * inv
+def _phi1(z, e):
+    """φ1(z) = (e^z − 1)/z, given e = e^z (its series near 0)."""
+    if _small(z, PHI1_SERIES):
+        s = INV_FACTORIAL[10] + 0j
+        for n in range(9, 0, -1):   # Σ z^j/(j+1)!, j = 0…9, by Horner
+            s = s * z + INV_FACTORIAL[n]
+        return s
+    return (e - 1.0) / z
 
 
 @inline_kernel
-def _slip_mode(x, e, lam, a0, a1, A, B):
-    """A mode's part of ω3 − ω4 at τ = x [rad/s], e = e^{λ·x} (the series near λ·x = 0)."""
-    lt = lam * x
-    if abs(lt) < SERIES_LIMIT:
-        return (a0 * (1.0 + lt * (1.0 + lt * (0.5 + lt * (1.0 / 6.0 + lt / 24.0))))
-                + a1 * x * (1.0 + lt * (0.5 + lt * (1.0 / 6.0 + lt / 24.0)))).real
-    return (A * e + B).real
+def _pair_series(zm, zn):
+    """∫₀¹ u²·φ1(zm·u)·φ1(zn·u) du = Σ_ij zm^i·zn^j / ((i+1)!(j+1)!(i+j+3)), |zm|, |zn| small
+    (terms to i + j = 7: the rest is below 1e-18 at PAIR_LIMIT)."""
+    total = 0j
+    for i in range(7, -1, -1):
+        inner = 0j
+        for j in range(7 - i, -1, -1):
+            inner = inner * zn + INV_FACTORIAL[j + 1] / (i + j + 3.0)
+        total = total * zm + inner * INV_FACTORIAL[i + 1]
+    return total
+
+
+@inline_kernel
+def _phi2_series(z):
+    """φ2(z) = (e^z − 1 − z)/z² by its series, |z| small (terms to z⁷)."""
+    s = INV_FACTORIAL[9] + 0j
+    for n in range(8, 1, -1):
+        s = s * z + INV_FACTORIAL[n]
+    return s
+
+
+@inline_kernel
+def _pair_integral(tau, lm, ln, w0m, wbm, w1m, jm, em, w0n, wbn, w1n, jn, en):
+    """∫₀^τ w_m·w_n dt for two modal coordinates (w' = λ·w + wb; w0, w1 = w(0), w(τ);
+    j = ∫₀^τ w; e = e^{λτ}).
+
+    (λ_m + λ_n)·∫w_m·w_n = [w_m·w_n]₀^τ − wb_m·j_n − wb_n·j_m, exact; its rounding grows as
+    1/|(λ_m + λ_n)·τ|, so below PAIR_LIMIT: with w(t) = w0 + w'(0)·t·φ1(λt), the product
+    integrated term by term when both λτ are small (the slow rigid-body mode with itself), else
+    with w = α·e^{λt} + β (β = −wb/λ, the mode's equilibrium: a lightly damped ringing mode with
+    its conjugate)."""
+    zm = lm * tau
+    zn = ln * tau
+    zmn = zm + zn
+    if not _small(zmn, PAIR_LIMIT):
+        return (w1m * w1n - w0m * w0n - wbm * jn - wbn * jm) / (lm + ln)
+    if _small(zm, PAIR_LIMIT) and _small(zn, PAIR_LIMIT):
+        dm = lm * w0m + wbm
+        dn = ln * w0n + wbn
+        return tau * (w0m * w0n + tau * (w0m * dn * _phi2_series(zn) + w0n * dm * _phi2_series(zm)
+                                         + tau * dm * dn * _pair_series(zm, zn)))
+    bm = -wbm / lm
+    bn = -wbn / ln
+    am = w0m - bm
+    an = w0n - bn
+    return tau * (am * an * _phi1(zmn, em * en) + am * bn * _phi1(zm, em)
+                  + bm * an * _phi1(zn, en) + bm * bn)
+
+
+@kernel
+def _damping_loss_series(tau, z0, P):
+    """k·∫₀^τ (ω3 − ω4)² dt [J] for a short step (max|λ|·τ ≤ LOSS_SERIES_LIMIT) from the slip's
+    Taylor series in the physical state, x(t) = Σ t^n/n!·A^(n−1)·(A·x0 + b): no modal basis, so
+    none of its rounding (a near-critically damped shaft has nearly parallel eigenvectors)."""
+    J3, J4, c, k, kv = P[P_J3], P[P_J4], P[P_C], P[P_KD], P[P_LOAD_VISCOUS]
+    th = z0[Z_TWIST]
+    w3 = z0[Z_OMEGA3]
+    w4 = z0[Z_OMEGA4]
+    a = np.empty(LOSS_SERIES_TERMS)   # slip coefficients, scaled: s_n·τ^n
+    a[0] = w3 - w4
+    # v = A·x + b once, then v ← A·v; its slip over n! times τ^n
+    ts = c * th + k * (w3 - w4)
+    th, w3, w4 = w3 - w4, -ts / J3, (ts - P[P_LOAD_TORQUE] - kv * w4) / J4
+    scale = tau
+    for n in range(1, LOSS_SERIES_TERMS):
+        a[n] = (w3 - w4) * scale
+        scale *= tau / (n + 1.0)
+        ts = c * th + k * (w3 - w4)
+        th, w3, w4 = w3 - w4, -ts / J3, (ts - kv * w4) / J4
+    total = 0.0
+    for i in range(LOSS_SERIES_TERMS):
+        row = 0.0
+        for j in range(LOSS_SERIES_TERMS):
+            row += a[j] / (i + j + 1.0)
+        total += a[i] * row
+    return k * tau * total
+
+
+@kernel
+def _damping_loss(tau, P, LIN, W):
+    """k·∫₀^τ (ω3 − ω4)² dt [J] = k·Σ_mn d_m·d_n·∫w_m·w_n, d = V_ω3 − V_ω4 (module text)."""
+    l0, a0, b0, c0, j0, e0 = _mode_over(tau, LIN, W, 0)
+    l1, a1, b1, c1, j1, e1 = _mode_over(tau, LIN, W, 1)
+    l2, a2, b2, c2, j2, e2 = _mode_over(tau, LIN, W, 2)
+    d0 = LIN[2, 0] - LIN[3, 0]
+    d1 = LIN[2, 1] - LIN[3, 1]
+    d2 = LIN[2, 2] - LIN[3, 2]
+    total = (d0 * d0 * _pair_integral(tau, l0, l0, a0, b0, c0, j0, e0, a0, b0, c0, j0, e0)
+             + d1 * d1 * _pair_integral(tau, l1, l1, a1, b1, c1, j1, e1, a1, b1, c1, j1, e1)
+             + d2 * d2 * _pair_integral(tau, l2, l2, a2, b2, c2, j2, e2, a2, b2, c2, j2, e2)
+             + 2.0 * (d0 * d1 * _pair_integral(tau, l0, l1, a0, b0, c0, j0, e0, a1, b1, c1, j1, e1)
+                      + d0 * d2 * _pair_integral(tau, l0, l2, a0, b0, c0, j0, e0, a2, b2, c2,
+                                                 j2, e2)
+                      + d1 * d2 * _pair_integral(tau, l1, l2, a1, b1, c1, j1, e1, a2, b2, c2,
+                                                 j2, e2)))
+    return P[P_KD] * total.real
 
 
 @kernel
@@ -168,38 +276,6 @@ def _work(tau, z0, P, LIN, W, theta, w3, w4, dphi4):
         return drop, 0.0
     if P[P_LOAD_VISCOUS] == 0.0:
         return drop, drop - P[P_LOAD_TORQUE] * dphi4
-    # composite Gauss–Legendre, ≤ GAUSS_PANEL_PHASE rad of the fastest mode per panel, on
-    # ω3 − ω4 = Re Σ_m d_m·(w0_m·e^{λτ} + wb_m·F1), d_m = V_ω3,m − V_ω4,m: each node's e^{λτ}
-    # from the first panel's by e^{λ·width} per panel (8 + 1 exponentials a mode a step, not
-    # 8 a panel; none for the second of a conjugate pair)
-    panels = max(1, int(math.ceil(P[P_OUTPUT_RATE] * tau / GAUSS_PANEL_PHASE)))
-    width = tau / panels
-    l0, a00, a10, A0, B0 = _slip_coefficients(0, LIN, W)
-    l1, a01, a11, A1, B1 = _slip_coefficients(1, LIN, W)
-    l2, a02, a12, A2, B2 = _slip_coefficients(2, LIN, W)
-    pair1 = l1.imag != 0.0 and l1 == l0.conjugate()
-    pair2 = l2.imag != 0.0 and l2 == l1.conjugate()
-    x0 = abs(l0 * tau) >= SERIES_LIMIT
-    x1 = abs(l1 * tau) >= SERIES_LIMIT
-    x2 = abs(l2 * tau) >= SERIES_LIMIT
-    s0 = np.exp(l0 * width) if x0 else 1.0 + 0j
-    s1 = (s0.conjugate() if pair1 else np.exp(l1 * width)) if x1 else 1.0 + 0j
-    s2 = (s1.conjugate() if pair2 else np.exp(l2 * width)) if x2 else 1.0 + 0j
-    loss = 0.0
-    for g in range(GAUSS_X.shape[0]):
-        u = 0.5 * (GAUSS_X[g] + 1.0)
-        e0 = np.exp(l0 * (width * u)) if x0 else 1.0 + 0j
-        e1 = (e0.conjugate() if pair1 else np.exp(l1 * (width * u))) if x1 else 1.0 + 0j
-        e2 = (e1.conjugate() if pair2 else np.exp(l2 * (width * u))) if x2 else 1.0 + 0j
-        acc = 0.0
-        for p in range(panels):
-            x = width * (p + u)
-            slip = (_slip_mode(x, e0, l0, a00, a10, A0, B0)
-                    + _slip_mode(x, e1, l1, a01, a11, A1, B1)
-                    + _slip_mode(x, e2, l2, a02, a12, A2, B2))
-            acc += slip * slip
-            e0 *= s0
-            e1 *= s1
-            e2 *= s2
-        loss += GAUSS_W[g] * acc
-    return drop, 0.5 * width * k * loss
+    if P[P_OUTPUT_RATE] * tau <= LOSS_SERIES_LIMIT:
+        return drop, _damping_loss_series(tau, z0, P)
+    return drop, _damping_loss(tau, P, LIN, W)
