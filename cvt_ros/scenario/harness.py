@@ -22,7 +22,7 @@ import time
 
 import numpy as np
 
-from ..control.measurement import ControllerError
+from ..control.measurement import ControllerError, Measurement
 from ..control.speed_pi import reference_controller
 from ..solver.output import COL, N_COLUMNS
 from ..solver.simulator import SimulationError
@@ -37,6 +37,7 @@ _POS = [COL[c] for c in ('phi1', 'phi2', 'phi3', 'phi4')]
 _VEL = [COL[c] for c in ('omega1', 'omega2', 'omega3', 'omega4')]
 _EFF = [COL[c] for c in ('motor_torque', 'clutch_torque', 'shaft_torque', 'load_torque')]
 _A, _ENG = COL['crank_length'], COL['engaged']
+_N_SEEN = COL['shaft_torque'] + 1   # the sample's columns a Measurement is made of
 
 
 class HarnessError(RuntimeError):
@@ -122,11 +123,15 @@ def _loop(scenario, controller, plant, controller_name, progress):
     grid = scenario.time_grid()
     setpoint = scenario.setpoint.sample(grid)
     load = scenario.load.sample(grid)
+    setpoints = setpoint.tolist()     # (Python floats: the loop compares and passes them on)
+    loads = load.tolist()
     limits = scenario.crank_limits
     rows = np.full((n + 1, N_COLUMNS), np.nan)
     commands = np.full(n + 1, np.nan)
     switches = []
     sensors = SensorModel(scenario.sensors, dt, scenario.seed)
+    # without a sensor model the measurement is the sample itself (the model's identity)
+    observe = sensors.observe if scenario.sensors.enabled else Measurement
     row = plant.start()            # (a node process starts here: not in the wall time)
     rows[0] = row
     wall0 = time.perf_counter()
@@ -134,7 +139,7 @@ def _loop(scenario, controller, plant, controller_name, progress):
     previous = float(row[_A])      # last command after the limiter [m], and its period
     k_previous = -1                # (the start counts as a command one period before)
     sent = previous                # last command the plant got [m]
-    load_now = load[0]
+    load_now = loads[0]
     clamped = 0
     error = None
     every = max(1, n // 100)
@@ -142,15 +147,15 @@ def _loop(scenario, controller, plant, controller_name, progress):
     k = 0
     try:
         while k < n:
-            if load[k] != load_now:
-                load_now = load[k]
-                plant.set_load_torque(float(load_now))
-            r = row.tolist()
+            if loads[k] != load_now:
+                load_now = loads[k]
+                plant.set_load_torque(load_now)
+            r = row[:_N_SEEN].tolist()
             # the time as a ROS stamp carries it (whole ns): every back end's controller sees
             # the same number (offline's t is a running sum of periods, dds's a stamp)
             r[0] = round(r[0] * 1e9) * 1e-9
-            m = sensors.observe(r[0], (r[1], r[2], r[3], r[4]), (r[5], r[6], r[7], r[8]),
-                                (r[14], r[11], r[15], r[13]), r[12], r[11] > 0.0, setpoint[k])
+            m = observe(r[0], (r[1], r[2], r[3], r[4]), (r[5], r[6], r[7], r[8]),
+                        (r[14], r[11], r[15], r[13]), r[12], r[11] > 0.0, setpoints[k])
             try:
                 a = controller(m)
             except Exception as exc:   # noqa: BLE001 — the user's code: report, keep the run
@@ -178,7 +183,8 @@ def _loop(scenario, controller, plant, controller_name, progress):
             row, sw = plant.step()
             k_next = min(max(k + 1, int(round(row[0] / dt))), n) if skips else k + 1
             rows[k_next] = row
-            switches.extend(sw)
+            if sw:
+                switches.extend(sw)
             if progress is not None and k // every != k_next // every:
                 progress(k_next * dt, scenario.duration)
             k = k_next

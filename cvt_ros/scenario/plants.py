@@ -5,6 +5,7 @@ Every back end offers the same five calls, so the harness loop (harness.py) is o
 * ``start()`` → the sample row at t = 0 (``cvt_ros.solver.output.COLUMNS``);
 * ``set_load_torque(m)`` and ``command_crank_length(a)``: take effect at the next period;
 * ``step()`` → (sample row at the end of the period, clutch switches inside it as (t, engaged));
+  the row may be the plant's own buffer, rewritten by the next ``step()``;
 * ``close()``.
 
 ``OfflinePlant`` drives the core's Simulator directly: commands, then ``advance(period)`` and
@@ -13,7 +14,7 @@ in the same order, as the device's lockstep loop makes, which is why the two giv
 traces.
 """
 from ..solver.fidelity import make_simulator
-from ..solver.period import PeriodStepper
+from ..solver.period import NO_SWITCHES, PeriodStepper
 
 
 def plant_values(scenario):
@@ -41,8 +42,11 @@ class OfflinePlant:
         self.sim.command_crank_length(length)   # (the stepper reads the new profile)
 
     def step(self):
-        row = self.stepper.advance().copy()   # (the stepper's buffer is rewritten next period)
-        return row, [(s.t, s.engaged) for s in self.stepper.switches if s.kind != 'graze']
+        row = self.stepper.advance()   # the stepper's buffer: the harness copies it at once
+        switches = self.stepper.switches
+        if not switches:
+            return row, NO_SWITCHES
+        return row, [(s.t, s.engaged) for s in switches if s.kind != 'graze']
 
     def close(self):
         pass
