@@ -141,7 +141,7 @@ def inprocess(seconds, fidelity='full'):
     pieces['period: one compiled advance-and-sample call'] = (time.perf_counter() - t0) / k
     if fidelity != 'averaged':
         args = (sim.y, sim.ms, sim.P, sim.ACT, sim.LIN, sim.S, sim.h_io, sim._empty_grid,
-                sim._empty_out, sim._events_buf, sim.counters, sim.ledger)
+                sim._empty_out, sim._events_buf, sim.counters, sim.ledger, sim._scratch)
         steps0, rhs0 = int(sim.counters[H.C_STEPS]), int(sim.counters[H.C_RHS])
         t0 = time.perf_counter()
         for _ in range(k):

@@ -14,7 +14,7 @@ import time
 import numpy as np
 
 from ..physics import layout as L
-from ..physics.compiled import kernel
+from ..physics.compiled import allocating_kernel
 from ..physics.dynamics import rhs
 from ..scene import load_scene
 from ..solver import hybrid as H
@@ -33,7 +33,7 @@ REJECT_TARGET = 0.5
 TIGHT = {'solver.rtol': 1e-10, 'solver.atol': 1e-12}
 
 
-@kernel
+@allocating_kernel
 def _rhs_loop(states, modes, P, ACT, repeats):
     dy = np.empty(states.shape[1])
     aux = np.empty(L.N_AUX)

@@ -25,7 +25,7 @@ import numpy as np
 
 from .. import parameters as params_mod
 from ..physics import layout as L
-from ..physics.compiled import kernel
+from ..physics.compiled import allocating_kernel, kernel
 from ..physics.drives import crank_actuator, load_torque, motor_torque, next_actuator_break
 from ..physics.linkage import kinematics, rocker_angle
 from . import hybrid as H
@@ -207,7 +207,7 @@ def averaged_rates(t, y, P, ACT, A, W1, M, R, j1e, dy):
     return a, md, m1, m4
 
 
-@kernel
+@allocating_kernel
 def averaged_sample(t, y, P, ACT, A, W1, M, R, j1e, aux, ysample):
     """The algebraic members (rocker from the linkage, mean twist) and the AUX values."""
     dy = np.empty(y.shape[0])
@@ -233,7 +233,7 @@ def averaged_sample(t, y, P, ACT, A, W1, M, R, j1e, aux, ysample):
     return md
 
 
-@kernel
+@allocating_kernel
 def averaged_advance(t, t_end, y, P, ACT, A, W1, M, R, j1e, grid, out, counters):
     """Classical RK4 from t to t_end, stepping onto every sample time and actuator break."""
     n = y.shape[0]

@@ -49,6 +49,7 @@ from ..physics.layout import (
     ENGAGED,
     N_AUX,
     N_OUTPUT,
+    N_STATE,
     OMEGA2,
     OMEGA3,
     OUTPUT_STATES,
@@ -121,6 +122,10 @@ C_RHS = 8          # right-hand-side evaluations (every one, in any mode)
 C_LATE = 9         # guards found beyond their band after a step: possibly missed events
 N_COUNTERS = 10
 
+DIP_STACK = 24   # pieces _split_dip may hold at once
+# the working arrays of one advance call, carved out of one float64 array (``scratch``)
+N_SCRATCH = 11 * N_STATE + 3 * N_AUX + 11 * N_OUTPUT + 3 * N_POLY + N_GUARD + 12 + 6 * DIP_STACK
+
 STATUS_OK = 0
 STATUS_EVENTS_FULL = 1
 STATUS_STEP_TOO_SMALL = 2
@@ -179,7 +184,7 @@ def _guard_at(method, theta, t, h, y0, y1, K, mode, P, ACT, ytmp, dytmp, auxtmp,
 def _output_state(exact, sigma, t, tau, hs, z0, clock, P, ztmp, with_work):
     """Output subsystem at tau + σ·hs: the exact solution from the step start t (exact), or the
     dense output of the sub-step [tau, tau+hs] that started at z0."""
-    Ko, zs, LIN, W = clock
+    Ko, zs, LIN, W, _ = clock
     if exact:
         output_at(tau + sigma * hs - t, zs, P, LIN, W, ztmp, with_work)
     else:
@@ -223,12 +228,13 @@ def _split_dip(exact, t, h, tau, hs, z0, clock, P, Cv, ztmp, g0, d0, g1, d1, m4,
     tm, pm = hermite_minimum(g0, d0, g1, d1)
     if min(pm, g0, g1) - m4 / 384.0 > -gtol:
         return -1.0, math.inf   # the usual case, settled without the refinement's stack
-    sa = np.empty(24)
-    sb = np.empty(24)
-    ga = np.empty(24)
-    gb = np.empty(24)
-    da = np.empty(24)
-    db = np.empty(24)
+    stack = clock[4]   # (6, DIP_STACK): the pieces still to look at
+    sa = stack[0]
+    sb = stack[1]
+    ga = stack[2]
+    gb = stack[3]
+    da = stack[4]
+    db = stack[5]
     top = 0
     sa[0], sb[0], ga[0], gb[0], da[0], db[0] = 0.0, 1.0, g0, g1, d0, d1
     while top >= 0:
@@ -405,7 +411,7 @@ def _split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arm
     'late'), the input step is re-taken exactly to that time and the state there is left in
     y_new. Returns (t reached, fire, last slip, armed).
     """
-    Ko, zs, LIN, W = clock
+    Ko, zs, LIN, W, _ = clock
     # the integrated output's own tolerance: its ringing decides where the slip crosses zero,
     # and it costs little (four states), so it is held to OUTPUT_RTOL at loose settings
     rtol = min(rtol, OUTPUT_RTOL)
@@ -443,7 +449,7 @@ def _split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arm
         dw3_0 = Ko[0, Z_OMEGA3]
         h_out = h_io[H_OUTPUT]
         if h_out <= 0.0:
-            h_out = initial_step(OUTPUT, t, z, mode, P, ACT, Ko[0], rtol, atol, ztmp, dytmp,
+            h_out = initial_step(OUTPUT, t, z, mode, P, ACT, Ko[0], rtol, atol, ztmp, dytmp, auxtmp,
                                  ERR_OUTPUT)
     jerk4 = _modal_jerk_bound(LIN, W) if exact else 0.0
     v4 = 24.0 * abs(Cv[4]) / h ** 4   # bound of the rocker speed's 4th derivative [rad/s⁵]
@@ -690,7 +696,7 @@ def _single_rate(method, kind, err_idx, t, h, clipped, t_end, y, y_new, K, mode,
 
 
 @kernel
-def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, ledger):
+def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, ledger, scratch):
     """Integrate the hybrid system from t to t_end [s]; returns the time reached.
 
     y: state (in/out); ms: int64[2] (clutch mode, guard armed); LIN: modal form of the linear
@@ -699,32 +705,43 @@ def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, 
     grid/out: sample times and rows (counters[C_NEXT_SAMPLE] is the next one to fill);
     events: rows (t, new mode, kind, value, late); ledger: float[1] kinetic energy lost in late
     (impact) engagements [J].
+    scratch: float[N_SCRATCH], the working arrays of the call (nothing is allocated per call).
     Stops early with counters[C_STATUS] ≠ 0 when the event table is full, a step fails or the
     step budget S_STEP_BUDGET is spent.
     """
     method = int(S[S_METHOD])
     rtol = S[S_RTOL]
     atol = S[S_ATOL]
-    n = y.shape[0]
-    K = np.empty((7, n))
-    y_new = np.empty(n)
-    ytmp = np.empty(n)
-    dytmp = np.empty(n)
-    aux0 = np.empty(N_AUX)
-    aux1 = np.empty(N_AUX)
-    auxtmp = np.empty(N_AUX)
-    Ko = np.empty((7, N_OUTPUT))
-    z = np.empty(N_OUTPUT)
-    z_new = np.empty(N_OUTPUT)
-    ztmp = np.empty(N_OUTPUT)
-    ycomb = np.empty(n)
-    C = np.empty((3, N_POLY))
-    G = np.empty(N_GUARD)
+    n = N_STATE
+    K = scratch[0:7 * n].reshape((7, n))
+    o = 7 * n
+    y_new = scratch[o:o + n]
+    ytmp = scratch[o + n:o + 2 * n]
+    dytmp = scratch[o + 2 * n:o + 3 * n]
+    ycomb = scratch[o + 3 * n:o + 4 * n]
+    o += 4 * n
+    aux0 = scratch[o:o + N_AUX]
+    aux1 = scratch[o + N_AUX:o + 2 * N_AUX]
+    auxtmp = scratch[o + 2 * N_AUX:o + 3 * N_AUX]
+    o += 3 * N_AUX
+    Ko = scratch[o:o + 7 * N_OUTPUT].reshape((7, N_OUTPUT))
+    o += 7 * N_OUTPUT
+    z = scratch[o:o + N_OUTPUT]
+    z_new = scratch[o + N_OUTPUT:o + 2 * N_OUTPUT]
+    ztmp = scratch[o + 2 * N_OUTPUT:o + 3 * N_OUTPUT]
+    zs = scratch[o + 3 * N_OUTPUT:o + 4 * N_OUTPUT]
+    o += 4 * N_OUTPUT
+    C = scratch[o:o + 3 * N_POLY].reshape((3, N_POLY))
+    G = scratch[o + 3 * N_POLY:o + 3 * N_POLY + N_GUARD]
+    o += 3 * N_POLY + N_GUARD
+    W = scratch[o:o + 12].view(np.complex128).reshape((2, 3))   # modal coordinates
+    o += 12
+    stack = scratch[o:o + 6 * DIP_STACK].reshape((6, DIP_STACK))
     exact = P[P_LINEAR_OUTPUT] > 0.0
     # a disengaged elastic output with J3 > 0 runs apart from the input (see _split_output):
     # exactly when it is linear, else on its own clock
     can_split = method == DOPRI5 and P[P_RIGID] == 0.0 and P[P_J3] > 0.0
-    clock = (Ko, np.empty(N_OUTPUT), LIN, np.empty((2, 3), dtype=np.complex128))
+    clock = (Ko, zs, LIN, W, stack)
     mode = ms[0]
     armed = ms[1] == 1
     counters[C_STATUS] = STATUS_OK
@@ -735,7 +752,7 @@ def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, 
     armed = armed or abs(g0) > guard_tolerance(mode, y, aux0, P)
     h_prop = h_io[H_MAIN]
     if method == DOPRI5 and h_prop <= 0.0:
-        h_prop = initial_step(FULL, t, y, mode, P, ACT, K[0], rtol, atol, ytmp, dytmp,
+        h_prop = initial_step(FULL, t, y, mode, P, ACT, K[0], rtol, atol, ytmp, dytmp, auxtmp,
                               ERR_FULL)
         counters[C_RHS] += 1
     err_old = ERR_OLD_START
@@ -916,7 +933,7 @@ def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, 
             # Hairer–Nørsett–Wanner estimate cannot see a stiff mode that the switch has not
             # excited yet: it is capped by the first step accepted after the last switch into
             # this mode, resized by its error (a periodic run's switches repeat their conditions)
-            h_new = initial_step(FULL, t, y, mode, P, ACT, K[0], rtol, atol, ytmp, dytmp,
+            h_new = initial_step(FULL, t, y, mode, P, ACT, K[0], rtol, atol, ytmp, dytmp, auxtmp,
                                  ERR_FULL)
             counters[C_RHS] += 1
             h_prop = min(h_new, 4.0 * h) if h_new > 0.0 else h_prop

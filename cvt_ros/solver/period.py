@@ -33,7 +33,23 @@ from ..physics.dynamics import rhs
 from . import hybrid as H
 from .averaged import AveragedSimulator, averaged_advance, averaged_sample
 from .output import COL, N_COLUMNS, write_sample
-from .simulator import REBASE_TURNS, SimulationError
+from .simulator import (
+    F_ACT,
+    F_AUX,
+    F_DY,
+    F_H,
+    F_LEDGER,
+    F_P,
+    F_ROW,
+    F_S,
+    F_SCRATCH,
+    F_SIZE,
+    F_Y,
+    I_COUNTERS,
+    I_MS,
+    REBASE_TURNS,
+    SimulationError,
+)
 from .steppers import RK4
 
 _PHI1, _PHI3, _PHI4 = COL['phi1'], COL['phi3'], COL['phi4']
@@ -46,7 +62,7 @@ UNFINISHED = 2    # not sampled: events table full, a failure, or angles to reba
 NO_SWITCHES = ()
 
 
-@njit(cache=True, error_model='numpy', fastmath=FASTMATH)
+@njit(cache=True, error_model='numpy', fastmath=FASTMATH, _nrt=False)
 def actuator_now(t, ACT, out):
     """out[0], out[1] = the actuator's (a, a') at t, as Simulator.command_crank_length reads it."""
     a, ad, _ = crank_actuator(t, ACT)
@@ -54,7 +70,7 @@ def actuator_now(t, ACT, out):
     out[1] = ad
 
 
-@njit(cache=True, error_model='numpy', fastmath=FASTMATH)
+@njit(cache=True, error_model='numpy', fastmath=FASTMATH, _nrt=False)
 def _finish(t, y, mode, P, ACT, turns1, turns4, dy, aux, row):
     """Simulator.sample() into ``row`` (unless angles are due for rebasing); the actuator rate."""
     if (abs(math.floor(y[L.PHI1] / TWO_PI)) >= REBASE_TURNS
@@ -69,23 +85,33 @@ def _finish(t, y, mode, P, ACT, turns1, turns4, dy, aux, row):
     return True, ad
 
 
-@njit(cache=True, error_model='numpy', fastmath=FASTMATH)
-def hybrid_period(t, dt, h_fixed, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters,
-                  ledger, turns1, turns4, dy, aux, row):
-    """Simulator.advance(dt) then Simulator.sample() into ``row``: (t, code, crank rate)."""
+@njit(cache=True, error_model='numpy', fastmath=FASTMATH, _nrt=False)
+def hybrid_period(t, dt, h_fixed, F, I, LIN, events, turns1, turns4):
+    """Simulator.advance(dt) then Simulator.sample() into the row, over the Simulator's blocks
+    (simulator.F_*, I_*: the same arrays as its attributes): (t, code, crank rate)."""
+    y = F[F_Y:F_P]
+    P = F[F_P:F_ACT]
+    ACT = F[F_ACT:F_S].reshape((L.N_ACT_SEGMENTS, 4))
+    S = F[F_S:F_H]
+    no_grid = F[:0]
     if S[H.S_METHOD] == RK4:
         n = max(1, math.ceil(dt / h_fixed - 1e-9))
         S[H.S_H_FIXED] = dt / n
-    t = H.advance(t, t + dt, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, ledger)
+    ms = I[I_MS:I_COUNTERS]
+    counters = I[I_COUNTERS:]
+    t = H.advance(t, t + dt, y, ms, P, ACT, LIN, S, F[F_H:F_LEDGER], no_grid,
+                     no_grid.reshape((0, N_COLUMNS)), events, counters, F[F_LEDGER:F_DY],
+                     F[F_SCRATCH:F_SIZE])
     if counters[H.C_STATUS] != H.STATUS_OK:
         return t, UNFINISHED, 0.0
-    sampled, rate = _finish(t, y, ms[0], P, ACT, turns1, turns4, dy, aux, row)
+    sampled, rate = _finish(t, y, ms[0], P, ACT, turns1, turns4, F[F_DY:F_AUX],
+                            F[F_AUX:F_ROW], F[F_ROW:F_SCRATCH])
     if not sampled:
         return t, UNFINISHED, 0.0
     return t, EVENTS if counters[H.C_EVENTS] > 0 else DONE, rate
 
 
-@njit(cache=True, error_model='numpy', fastmath=FASTMATH)
+@njit(cache=True, error_model='numpy', fastmath=FASTMATH)   # (the averaged kernels allocate)
 def averaged_period(t, dt, h_fixed, y, P, ACT, A, W1, M, R, j1e, S, grid, out, counters,
                     turns1, turns4, aux, ysample, row):
     """AveragedSimulator.advance(dt) then .sample() into ``row``: (t, code, crank rate)."""
@@ -118,14 +144,14 @@ class PeriodStepper:
     def __init__(self, sim, dt):
         self.sim = sim
         self.dt = float(dt)
-        self.row = np.empty(N_COLUMNS)
+        self.averaged = isinstance(sim, AveragedSimulator)
+        # the hybrid period writes its sample into the Simulator's block (one per Simulator)
+        self.row = np.empty(N_COLUMNS) if self.averaged else sim._floats[F_ROW:F_SCRATCH]
         self.switches = NO_SWITCHES
         self.crank_rate = 0.0
-        self._dy = np.empty(L.N_STATE)
         self._aux = np.empty(L.N_AUX)
         self._ysample = np.empty(L.N_STATE)
         self._act = np.empty(2)
-        self.averaged = isinstance(sim, AveragedSimulator)
 
     # ------------------------------------------------------------------ commands
     def command_crank_length(self, target):
@@ -153,9 +179,8 @@ class PeriodStepper:
                 sim.turns_phi4, self._aux, self._ysample, self.row)
         else:
             sim.t, code, rate = hybrid_period(
-                sim.t, self.dt, sim.h_fixed, sim.y, sim.ms, sim.P, sim.ACT, sim.LIN, sim.S,
-                sim.h_io, sim._empty_grid, sim._empty_out, sim._events_buf, sim.counters,
-                sim.ledger, sim.turns_phi1, sim.turns_phi4, self._dy, self._aux, self.row)
+                sim.t, self.dt, sim.h_fixed, sim._floats, sim._ints, sim.LIN, sim._events_buf,
+                sim.turns_phi1, sim.turns_phi4)
         if code == DONE:
             self.switches = NO_SWITCHES
             self.crank_rate = rate

@@ -16,7 +16,6 @@ from ..physics.compiled import inline_kernel, kernel
 from ..physics.dynamics import output_rhs, rhs
 from ..physics.layout import (
     INPUT_DYNAMIC,
-    N_AUX,
     N_DYNAMIC,
     N_OUTPUT_DYNAMIC,
     OUTPUT_STATES,
@@ -214,9 +213,9 @@ def dense_coefficients(method, h, y0, y1, K, i, c):
 
 
 @kernel
-def initial_step(kind, t, y, mode, P, ACT, f0, rtol, atol, ytmp, ftmp, err_idx):
-    """Hairer–Nørsett–Wanner starting step (as scipy's ``select_initial_step``), order 5."""
-    aux = np.empty(N_AUX)
+def initial_step(kind, t, y, mode, P, ACT, f0, rtol, atol, ytmp, ftmp, aux, err_idx):
+    """Hairer–Nørsett–Wanner starting step (as scipy's ``select_initial_step``), order 5
+    (ytmp, ftmp, aux: working arrays)."""
     d0 = 0.0
     d1 = 0.0
     for i in err_idx:
