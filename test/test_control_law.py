@@ -34,6 +34,31 @@ def test_cycle_mean_of_a_standing_crank_falls_back_to_a_time_window():
     assert got and np.allclose(got, 2.0)
 
 
+class _AlwaysFullPath(CycleMeanSpeed):
+    def _set_quiet(self):
+        self._quiet = (-math.inf, -math.inf)
+
+
+def test_cycle_mean_early_answer_is_the_full_paths_to_the_bit():
+    """The early "turn goes on" answer only skips work: samples placed just below, on and just
+    above each crossing and window end (and hours into a run, where φ1 is large) give the same
+    means, to the bit, as the full path on every sample."""
+    rng = np.random.default_rng(3)
+    for t0, phi0 in ((0.0, 0.3), (3600.0, 150.0 * 3600.0)):
+        fast, full = CycleMeanSpeed(max_window=0.05), _AlwaysFullPath(max_window=0.05)
+        t, phi1, phi4 = t0, phi0, 0.0
+        for k in range(20000):
+            # mostly 1 ms steps at 150 rad/s; now and then one that lands within 1e-12 of the
+            # next crossing, or a standing crank (the time window)
+            step = 0.15 if k % 7 else float(rng.choice([0.15, 1e-12, 0.0]))
+            if k % 997 == 0:
+                step = (fast._phi1_0 + (fast._turn + 1) * TWO_PI - phi1) * (1 - 1e-16)
+            t += 1e-3
+            phi1 += max(step, 0.0)
+            phi4 += 0.05
+            assert fast.update(t, phi1, phi4) == full.update(t, phi1, phi4), k
+
+
 def _meas(t, phi1, phi4, a, sp, engaged=True):
     return Measurement(t, (phi1, 0.0, 0.0, phi4), (0.0,) * 4, (0.0,) * 4, a, engaged, sp)
 

@@ -49,14 +49,33 @@ class CycleMeanSpeed:
         self._mark = None          # (t, φ4) at the last crossing
         self._turn = 0             # crossings so far
         self._phi1_0 = 0.0
+        self._quiet = (-math.inf, -math.inf)   # below both: no crossing, no window (see update)
 
     def update(self, t, phi1, phi4):
         prev = self._prev
         self._prev = (t, phi1, phi4)
+        phi1_quiet, t_quiet = self._quiet
+        if phi1 < phi1_quiet and t < t_quiet:
+            return None   # most samples: the turn goes on (the checks below, decided early)
         if prev is None:
             self._phi1_0 = phi1
             self._mark = (t, phi4)
+            self._set_quiet()
             return None
+        value = self._crossing(t, phi1, phi4, prev)
+        self._set_quiet()
+        return value
+
+    def _set_quiet(self):
+        # a margin of 1e-9 (relative, and absolute near 0) below the exact tests of _crossing,
+        # far above their rounding: samples in it take the full path, so the early answer
+        # never differs from it
+        phi1_next = self._phi1_0 + (self._turn + 1) * TWO_PI
+        t_window = self._mark[0] + self.max_window
+        self._quiet = (phi1_next - 1e-9 * (1.0 + abs(phi1_next)),
+                       t_window - 1e-9 * (1.0 + abs(t_window)))
+
+    def _crossing(self, t, phi1, phi4, prev):
         turn = math.floor((phi1 - self._phi1_0) / TWO_PI)
         if turn > self._turn:
             self._turn = turn
