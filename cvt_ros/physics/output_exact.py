@@ -83,7 +83,17 @@ def modal_form(P):
         lam, V = np.linalg.eig(A)
         if not np.all(np.isfinite(lam)) or np.linalg.cond(V) > MAX_CONDITION:
             return False, lin, 0.0, 0.0
+        # a conjugate pair (if any) as modes 0 and 1 (positive imaginary part first), exactly
+        # conjugate with its rows of V⁻¹, so that mode 1 is mode 0's conjugate to the bit
+        order = np.argsort(np.where(lam.imag > 0.0, 0, np.where(lam.imag < 0.0, 1, 2)),
+                           kind='stable')
+        lam, V = lam[order], V[:, order]
         inv = np.linalg.inv(V)
+        if lam[0].imag != 0.0:
+            lam[1] = lam[0].conjugate()
+            V[:, 1] = V[:, 0].conjugate()
+            inv[1] = inv[0].conjugate()
+            lam[2], V[:, 2], inv[2] = lam[2].real, V[:, 2].real, inv[2].real   # the real mode
     except np.linalg.LinAlgError:   # inertias at the table's extremes: integrate instead
         return False, lin, 0.0, 0.0
     lin[0] = lam
@@ -123,14 +133,29 @@ def _mode_over(tau, LIN, W, m):
 
 
 @inline_kernel
-def _modal_state(tau, LIN, W):
-    """(x(τ), ∫₀^τ x) as six floats from the modal coordinates W."""
+def modes_over(tau, LIN, W):
+    """The three modes over [0, τ] (``_mode_over`` each); the second of a conjugate pair (modes 0
+    and 1: ``modal_form`` puts a pair first, exactly conjugate) as the first's conjugate, which
+    it is to the bit: one complex exponential fewer."""
+    m0 = _mode_over(tau, LIN, W, 0)
+    if LIN[0, 0].imag != 0.0:
+        lam, w0, wb, w1, j, e = m0
+        m1 = (lam.conjugate(), w0.conjugate(), wb.conjugate(), w1.conjugate(), j.conjugate(),
+              e.conjugate())
+    else:
+        m1 = _mode_over(tau, LIN, W, 1)
+    return m0, m1, _mode_over(tau, LIN, W, 2)
+
+
+@inline_kernel
+def _modal_state(LIN, modes):
+    """(x(τ), ∫₀^τ x) as four floats (θ, ω3, ω4, Δφ4) from the modes over [0, τ]."""
     c0 = 0j
     c1 = 0j
     c2 = 0j
     i2 = 0j
     for k in range(3):
-        _, _, _, wk, jk, _ = _mode_over(tau, LIN, W, k)
+        _, _, _, wk, jk, _ = modes[k]
         c0 += LIN[1, k] * wk
         c1 += LIN[2, k] * wk
         c2 += LIN[3, k] * wk
@@ -144,7 +169,13 @@ def output_at(tau, z0, P, LIN, W, z, with_work):
 
     with_work: also the load work and damping loss since the step start (else left as z0's).
     """
-    theta, w3, w4, dphi4 = _modal_state(tau, LIN, W)
+    output_from_modes(tau, z0, P, LIN, modes_over(tau, LIN, W), z, with_work)
+
+
+@inline_kernel
+def output_from_modes(tau, z0, P, LIN, modes, z, with_work):
+    """``output_at`` from the modes over [0, τ] a caller has already (``modes_over``)."""
+    theta, w3, w4, dphi4 = _modal_state(LIN, modes)
     z[Z_TWIST] = theta
     z[Z_OMEGA3] = w3
     z[Z_OMEGA4] = w4
@@ -152,7 +183,7 @@ def output_at(tau, z0, P, LIN, W, z, with_work):
     z[Z_W_LOAD] = z0[Z_W_LOAD]
     z[Z_W_DAMPING] = z0[Z_W_DAMPING]
     if with_work:
-        drop, loss = _work(tau, z0, P, LIN, W, theta, w3, w4, dphi4)
+        drop, loss = _work(tau, z0, P, LIN, modes, theta, w3, w4, dphi4)
         z[Z_W_LOAD] = z0[Z_W_LOAD] + drop - loss
         z[Z_W_DAMPING] = z0[Z_W_DAMPING] + loss
 
@@ -260,27 +291,31 @@ def _damping_loss_series(tau, z0, P):
 
 
 @kernel
-def _damping_loss(tau, P, LIN, W):
-    """k·∫₀^τ (ω3 − ω4)² dt [J] = k·Σ_mn d_m·d_n·∫w_m·w_n, d = V_ω3 − V_ω4 (module text)."""
-    l0, a0, b0, c0, j0, e0 = _mode_over(tau, LIN, W, 0)
-    l1, a1, b1, c1, j1, e1 = _mode_over(tau, LIN, W, 1)
-    l2, a2, b2, c2, j2, e2 = _mode_over(tau, LIN, W, 2)
+def _damping_loss(tau, P, LIN, modes):
+    """k·∫₀^τ (ω3 − ω4)² dt [J] = k·Σ_mn d_m·d_n·∫w_m·w_n, d = V_ω3 − V_ω4 (module text).
+    With a conjugate pair (modes 0, 1) and the real mode 2, the terms of mode 1 are the
+    conjugates of mode 0's: 4 pair integrals instead of 6."""
+    l0, a0, b0, c0, j0, e0 = modes[0]
+    l1, a1, b1, c1, j1, e1 = modes[1]
+    l2, a2, b2, c2, j2, e2 = modes[2]
     d0 = LIN[2, 0] - LIN[3, 0]
     d1 = LIN[2, 1] - LIN[3, 1]
     d2 = LIN[2, 2] - LIN[3, 2]
-    total = (d0 * d0 * _pair_integral(tau, l0, l0, a0, b0, c0, j0, e0, a0, b0, c0, j0, e0)
-             + d1 * d1 * _pair_integral(tau, l1, l1, a1, b1, c1, j1, e1, a1, b1, c1, j1, e1)
-             + d2 * d2 * _pair_integral(tau, l2, l2, a2, b2, c2, j2, e2, a2, b2, c2, j2, e2)
-             + 2.0 * (d0 * d1 * _pair_integral(tau, l0, l1, a0, b0, c0, j0, e0, a1, b1, c1, j1, e1)
-                      + d0 * d2 * _pair_integral(tau, l0, l2, a0, b0, c0, j0, e0, a2, b2, c2,
-                                                 j2, e2)
-                      + d1 * d2 * _pair_integral(tau, l1, l2, a1, b1, c1, j1, e1, a2, b2, c2,
-                                                 j2, e2)))
-    return P[P_KD] * total.real
+    i00 = d0 * d0 * _pair_integral(tau, l0, l0, a0, b0, c0, j0, e0, a0, b0, c0, j0, e0)
+    i22 = d2 * d2 * _pair_integral(tau, l2, l2, a2, b2, c2, j2, e2, a2, b2, c2, j2, e2)
+    i01 = d0 * d1 * _pair_integral(tau, l0, l1, a0, b0, c0, j0, e0, a1, b1, c1, j1, e1)
+    i02 = d0 * d2 * _pair_integral(tau, l0, l2, a0, b0, c0, j0, e0, a2, b2, c2, j2, e2)
+    if LIN[0, 0].imag != 0.0:
+        total = 2.0 * i00.real + i22.real + 2.0 * (i01.real + 2.0 * i02.real)
+    else:
+        i11 = d1 * d1 * _pair_integral(tau, l1, l1, a1, b1, c1, j1, e1, a1, b1, c1, j1, e1)
+        i12 = d1 * d2 * _pair_integral(tau, l1, l2, a1, b1, c1, j1, e1, a2, b2, c2, j2, e2)
+        total = (i00 + i11 + i22 + 2.0 * (i01 + i02 + i12)).real
+    return P[P_KD] * total
 
 
 @kernel
-def _work(tau, z0, P, LIN, W, theta, w3, w4, dphi4):
+def _work(tau, z0, P, LIN, modes, theta, w3, w4, dphi4):
     """(energy drop of the output subsystem, damping loss) over [0, τ] [J]."""
     J3, J4, c, k = P[P_J3], P[P_J4], P[P_C], P[P_KD]
     e0 = 0.5 * (J3 * z0[Z_OMEGA3] ** 2 + J4 * z0[Z_OMEGA4] ** 2 + c * z0[Z_TWIST] ** 2)
@@ -292,4 +327,4 @@ def _work(tau, z0, P, LIN, W, theta, w3, w4, dphi4):
         return drop, drop - P[P_LOAD_TORQUE] * dphi4
     if P[P_OUTPUT_RATE] * tau <= LOSS_SERIES_LIMIT:
         return drop, _damping_loss_series(tau, z0, P)
-    return drop, _damping_loss(tau, P, LIN, W)
+    return drop, _damping_loss(tau, P, LIN, modes)

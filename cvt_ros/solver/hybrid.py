@@ -65,7 +65,7 @@ from ..physics.layout import (
     Z_OMEGA4,
     Z_TWIST,
 )
-from ..physics.output_exact import modal_coordinates, output_at
+from ..physics.output_exact import modal_coordinates, modes_over, output_at, output_from_modes
 from .output import write_sample
 from .steppers import (
     DOPRI5,
@@ -278,12 +278,13 @@ def _modal_jerk_bound(LIN, W):
 
 
 @inline_kernel
-def _slip_floor(h, g0, g1, LIN, W, Cv):
+def _slip_floor(h, g0, g1, LIN, W, Cv, modes):
     """A lower bound of the slip ω3 − v over a whole split step [t, t+h] [rad/s], from the exact
     output's modes (output_exact.py) and the rocker speed's polynomial Cv: the modes faster than
     the step (|λ|·h > 1: the shaft's ringing) by their amplitude |a_k|·max(1, e^{Re λ_k·h}), the
     rest (smooth over the step) by the chord between the ends less h²/8·max|f''|. When it stays
-    clear of zero no crossing or dip can hide in the step, and its dense watch is skipped."""
+    clear of zero no crossing or dip can hide in the step, and its dense watch is skipped.
+    modes: the modes over [0, h] (output_exact.modes_over; their e^{λh} is used)."""
     f0 = g0
     f1 = g1
     amp = 0.0
@@ -296,7 +297,7 @@ def _slip_floor(h, g0, g1, LIN, W, Cv):
         grow = max(1.0, math.exp(lam.real * h))
         if abs(lam) * h > 1.0:
             f0 -= a.real
-            f1 -= (a * np.exp(lam * h)).real
+            f1 -= (a * modes[k][5]).real   # e^{λh}
             amp += abs(a) * grow
         else:
             curv += abs(a) * abs(lam) ** 2 * grow * h * h
@@ -426,10 +427,11 @@ def _split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arm
     if exact:
         modal_coordinates(z, P, LIN, W)
         if armed and g0 > 0.0:
-            output_at(h, zs, P, LIN, W, z_new, True)
+            modes = modes_over(h, LIN, W)
+            output_from_modes(h, zs, P, LIN, modes, z_new, True)
             g1 = z_new[Z_OMEGA3] - poly_value(Cv, 1.0)
             gtol = SLIP_TOLERANCE * (1.0 + abs(Cv[0]) + abs(z[Z_OMEGA3]) + abs(g1) + abs(g0))
-            if _slip_floor(h, g0, g1, LIN, W, Cv) > 4.0 * gtol:
+            if _slip_floor(h, g0, g1, LIN, W, Cv, modes) > 4.0 * gtol:
                 # the usual free-running step: no catch possible anywhere in it
                 counters[C_SUBSTEPS] += 1
                 if _due(grid, counters, t1):
