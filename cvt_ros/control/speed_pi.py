@@ -155,7 +155,8 @@ class SpeedPI:
 
     def update(self, t, phi1, phi4, crank_length, setpoint, clutch_engaged=True):
         """One control period from plain numbers (what the ROS node calls)."""
-        self._engaged_in_turn = self._engaged_in_turn or clutch_engaged
+        if clutch_engaged:
+            self._engaged_in_turn = True
         w = self.speed.update(t, phi1, phi4)
         if w is None:
             return None

@@ -148,19 +148,21 @@ def _loop(scenario, controller, plant, controller_name, progress):
     skips = getattr(plant, 'skips_periods', False)   # realtime: the newest sample only
     k = 0
     try:
+        # (locals, not attributes or globals: this loop is a good part of a period's cost)
+        step, new_tuple, measurement, n_seen = plant.step, _new_tuple, Measurement, _N_SEEN
         while k < n:
             if loads[k] != load_now:
                 load_now = loads[k]
                 plant.set_load_torque(load_now)
-            r = row[:_N_SEEN].tolist()
+            r = row[:n_seen].tolist()
             # the time as a ROS stamp carries it (whole ns): every back end's controller sees
             # the same number (offline's t is a running sum of periods, dds's a stamp)
             r[0] = round(r[0] * 1e9) * 1e-9
             if observe is None:
-                m = _new_tuple(Measurement, (r[0], (r[1], r[2], r[3], r[4]),
-                                             (r[5], r[6], r[7], r[8]),
-                                             (r[14], r[11], r[15], r[13]), r[12], r[11] > 0.0,
-                                             setpoints[k]))
+                m = new_tuple(measurement, (r[0], (r[1], r[2], r[3], r[4]),
+                                            (r[5], r[6], r[7], r[8]),
+                                            (r[14], r[11], r[15], r[13]), r[12], r[11] > 0.0,
+                                            setpoints[k]))
             else:
                 m = observe(r[0], (r[1], r[2], r[3], r[4]), (r[5], r[6], r[7], r[8]),
                             (r[14], r[11], r[15], r[13]), r[12], r[11] > 0.0, setpoints[k])
@@ -188,7 +190,7 @@ def _loop(scenario, controller, plant, controller_name, progress):
                 if passed is not None and passed != sent:
                     sent = passed
                     plant.command_crank_length(passed)
-            row, sw = plant.step()
+            row, sw = step()
             k_next = min(max(k + 1, int(round(row[0] / dt))), n) if skips else k + 1
             rows[k_next] = row
             if sw:

@@ -152,6 +152,7 @@ class PeriodStepper:
         self._aux = np.empty(L.N_AUX)
         self._ysample = np.empty(L.N_STATE)
         self._act = np.empty(2)
+        self._floats, self._ints, self._events = sim._floats, sim._ints, sim._events_buf
 
     # ------------------------------------------------------------------ commands
     def command_crank_length(self, target):
@@ -174,13 +175,13 @@ class PeriodStepper:
         if self.averaged:
             m = sim.ratio_map
             sim.t, code, rate = averaged_period(
-                sim.t, self.dt, sim.h_fixed, sim.y, sim.P, sim.ACT, m.a, m.w1, m.m, m.ratio,
+                t0, self.dt, sim.h_fixed, sim.y, sim.P, sim.ACT, m.a, m.w1, m.m, m.ratio,
                 sim.j1e, sim.S, sim._empty_grid, sim._empty_out, sim.counters, sim.turns_phi1,
                 sim.turns_phi4, self._aux, self._ysample, self.row)
-        else:
-            sim.t, code, rate = hybrid_period(
-                sim.t, self.dt, sim.h_fixed, sim._floats, sim._ints, sim.LIN, sim._events_buf,
-                sim.turns_phi1, sim.turns_phi4)
+        else:   # (the blocks and the events table are never rebound: kept at __init__)
+            sim.t, code, rate = hybrid_period(t0, self.dt, sim.h_fixed, self._floats,
+                                              self._ints, sim.LIN, self._events,
+                                              sim.turns_phi1, sim.turns_phi4)
         if code == DONE:
             self.switches = NO_SWITCHES
             self.crank_rate = rate
