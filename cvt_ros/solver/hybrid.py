@@ -65,7 +65,13 @@ from ..physics.layout import (
     Z_OMEGA4,
     Z_TWIST,
 )
-from ..physics.output_exact import modal_coordinates, modes_over, output_at, output_from_modes
+from ..physics.output_exact import (
+    modal_coordinates,
+    modes_over,
+    modulus2,
+    output_at,
+    output_from_modes,
+)
 from .output import write_sample
 from .steppers import (
     DOPRI5,
@@ -273,7 +279,8 @@ def _modal_jerk_bound(LIN, W):
     for k in range(3):
         lam = LIN[0, k]
         if lam != 0.0:
-            m += abs(LIN[2, k] * (W[0, k] + W[1, k] / lam)) * abs(lam) ** 4
+            m2 = modulus2(lam)
+            m += math.sqrt(modulus2(LIN[2, k] * (W[0, k] + W[1, k] / lam))) * m2 * m2
     return m
 
 
@@ -295,12 +302,13 @@ def _slip_floor(h, g0, g1, LIN, W, Cv, modes):
             continue   # the rigid-body mode: ω3 linear in τ, no curvature
         a = LIN[2, k] * (W[0, k] + W[1, k] / lam)
         grow = max(1.0, math.exp(lam.real * h))
-        if abs(lam) * h > 1.0:
+        m2 = modulus2(lam)
+        if m2 * h * h > 1.0:   # |λ|·h > 1
             f0 -= a.real
             f1 -= (a * modes[k][5]).real   # e^{λh}
-            amp += abs(a) * grow
+            amp += math.sqrt(modulus2(a)) * grow
         else:
-            curv += abs(a) * abs(lam) ** 2 * grow * h * h
+            curv += math.sqrt(modulus2(a)) * m2 * grow * h * h
     for k in range(2, N_POLY):
         curv += k * (k - 1) * abs(Cv[k])   # |d²v/dθ²| ≤ Σ k(k−1)|c_k|
     return min(f0, f1) - amp - curv / 8.0
@@ -392,7 +400,7 @@ def _fast_real_modes(t, h, LIN, W, gtol):
     for k in range(3):
         lam = LIN[0, k]
         if lam.imag == 0.0 and lam.real < 0.0 and -lam.real * h > EXACT_PHASE_STEP:
-            amp = abs(LIN[2, k] * (W[0, k] + W[1, k] / lam))
+            amp = math.sqrt(modulus2(LIN[2, k] * (W[0, k] + W[1, k] / lam)))
             if amp > gtol:
                 rate = max(rate, -lam.real)
                 until = max(until, t + math.log(amp / gtol) / -lam.real)

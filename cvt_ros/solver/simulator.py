@@ -167,7 +167,17 @@ class Simulator:
     def __init__(self, values=None, events_capacity=4096):
         self.values = params_mod.validate(values or {})
         self._events_buf = np.zeros((events_capacity, H.N_EVENT_COLUMNS))
-        f = self._floats = np.zeros(F_SIZE)
+        self._floats = np.zeros(F_SIZE)
+        self._ints = np.zeros(I_SIZE, dtype=np.int64)
+        self._make_views()
+        self._empty_grid = np.zeros(0)
+        self._empty_out = np.zeros((0, N_COLUMNS))
+        self.reset()
+
+    _VIEWS = ('y', 'P', 'ACT', 'S', 'h_io', 'ledger', '_scratch', 'ms', 'counters')
+
+    def _make_views(self):
+        f = self._floats
         self.y = f[F_Y:F_P]
         self.P = f[F_P:F_ACT]
         self.ACT = f[F_ACT:F_S].reshape(L.N_ACT_SEGMENTS, 4)
@@ -175,12 +185,17 @@ class Simulator:
         self.h_io = f[F_H:F_LEDGER]
         self.ledger = f[F_LEDGER:F_DY]      # kinetic energy lost in impacts [J]
         self._scratch = f[F_SCRATCH:F_SIZE]
-        self._ints = np.zeros(I_SIZE, dtype=np.int64)
         self.ms = self._ints[I_MS:I_COUNTERS]
         self.counters = self._ints[I_COUNTERS:]
-        self._empty_grid = np.zeros(0)
-        self._empty_out = np.zeros((0, N_COLUMNS))
-        self.reset()
+
+    def __getstate__(self):
+        # copy.deepcopy and pickle copy arrays one by one: the views would come back as arrays
+        # of their own, apart from the blocks the compiled period reads; they are made anew
+        return {k: v for k, v in self.__dict__.items() if k not in self._VIEWS}
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._make_views()
 
     # ------------------------------------------------------------------ set-up
     def reset(self):
