@@ -57,16 +57,16 @@ INV_FACTORIAL = np.array([1.0 / math.factorial(n) for n in range(12)])
 
 
 @inline_kernel
-def _small(z, limit):
-    """|z| < limit for a complex z, without the square root (hypot) of abs()."""
-    return z.real * z.real + z.imag * z.imag < limit * limit
-
-
-@inline_kernel
 def modulus2(z):
     """|z|² of a complex z (abs() calls libm's hypot: overflow-safe, ~4× the cost; the
     modal quantities here are far from overflow)."""
     return z.real * z.real + z.imag * z.imag
+
+
+@inline_kernel
+def _small(z, limit):
+    """|z| < limit for a complex z, without the square root."""
+    return modulus2(z) < limit * limit
 
 
 def modal_form(P):

@@ -158,14 +158,9 @@ def _loop(scenario, controller, plant, controller_name, progress):
             # the time as a ROS stamp carries it (whole ns): every back end's controller sees
             # the same number (offline's t is a running sum of periods, dds's a stamp)
             r[0] = round(r[0] * 1e9) * 1e-9
-            if observe is None:
-                m = new_tuple(measurement, (r[0], (r[1], r[2], r[3], r[4]),
-                                            (r[5], r[6], r[7], r[8]),
-                                            (r[14], r[11], r[15], r[13]), r[12], r[11] > 0.0,
-                                            setpoints[k]))
-            else:
-                m = observe(r[0], (r[1], r[2], r[3], r[4]), (r[5], r[6], r[7], r[8]),
-                            (r[14], r[11], r[15], r[13]), r[12], r[11] > 0.0, setpoints[k])
+            seen = (r[0], (r[1], r[2], r[3], r[4]), (r[5], r[6], r[7], r[8]),
+                    (r[14], r[11], r[15], r[13]), r[12], r[11] > 0.0, setpoints[k])
+            m = new_tuple(measurement, seen) if observe is None else observe(*seen)
             try:
                 a = controller(m)
             except Exception as exc:   # noqa: BLE001 — the user's code: report, keep the run

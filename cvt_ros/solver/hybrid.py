@@ -129,8 +129,12 @@ C_LATE = 9         # guards found beyond their band after a step: possibly misse
 N_COUNTERS = 10
 
 DIP_STACK = 24   # pieces _split_dip may hold at once
-# the working arrays of one advance call, carved out of one float64 array (``scratch``)
-N_SCRATCH = 11 * N_STATE + 3 * N_AUX + 11 * N_OUTPUT + 3 * N_POLY + N_GUARD + 12 + 6 * DIP_STACK
+N_MODAL = 2 * 3 * 2   # the modal coordinates W, complex (2, 3), as float64s
+# the working arrays of one advance call, carved out of one float64 array (``scratch``) in
+# this order: K, y_new, ytmp, dytmp, ycomb; aux0, aux1, auxtmp; Ko, z, z_new, ztmp, zs; C, G;
+# W; the dip stack
+N_SCRATCH = (11 * N_STATE + 3 * N_AUX + 11 * N_OUTPUT + 3 * N_POLY + N_GUARD + N_MODAL
+             + 6 * DIP_STACK)
 
 STATUS_OK = 0
 STATUS_EVENTS_FULL = 1
@@ -744,8 +748,8 @@ def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, 
     C = scratch[o:o + 3 * N_POLY].reshape((3, N_POLY))
     G = scratch[o + 3 * N_POLY:o + 3 * N_POLY + N_GUARD]
     o += 3 * N_POLY + N_GUARD
-    W = scratch[o:o + 12].view(np.complex128).reshape((2, 3))   # modal coordinates
-    o += 12
+    W = scratch[o:o + N_MODAL].view(np.complex128).reshape((2, 3))   # modal coordinates
+    o += N_MODAL
     stack = scratch[o:o + 6 * DIP_STACK].reshape((6, DIP_STACK))
     exact = P[P_LINEAR_OUTPUT] > 0.0
     # a disengaged elastic output with J3 > 0 runs apart from the input (see _split_output):

@@ -100,8 +100,8 @@ def hybrid_period(t, dt, h_fixed, F, I, LIN, events, turns1, turns4):
     ms = I[I_MS:I_COUNTERS]
     counters = I[I_COUNTERS:]
     t = H.advance(t, t + dt, y, ms, P, ACT, LIN, S, F[F_H:F_LEDGER], no_grid,
-                     no_grid.reshape((0, N_COLUMNS)), events, counters, F[F_LEDGER:F_DY],
-                     F[F_SCRATCH:F_SIZE])
+                  no_grid.reshape((0, N_COLUMNS)), events, counters, F[F_LEDGER:F_DY],
+                  F[F_SCRATCH:F_SIZE])
     if counters[H.C_STATUS] != H.STATUS_OK:
         return t, UNFINISHED, 0.0
     sampled, rate = _finish(t, y, ms[0], P, ACT, turns1, turns4, F[F_DY:F_AUX],

@@ -64,8 +64,10 @@ class RunResult:
 
 
 # The arrays the compiled period (period.py) reads live in one float64 and one int64 block, as
-# views the Simulator fills in place and never rebinds: two array arguments per call instead of
-# eleven (each costs ~45 ns to unbox at the Python boundary, more than a right-hand side).
+# views the Simulator fills in place and never rebinds: the period takes the two blocks instead of
+# thirteen arrays (each costs ~45 ns to unbox at the Python boundary, about half a right-hand
+# side), and the solver's working arrays come from the float block too (nothing is allocated
+# per call: the kernels run without numba's reference counting, physics/compiled.py).
 F_Y = 0                                   # state y
 F_P = F_Y + L.N_STATE                     # parameters P
 F_ACT = F_P + L.N_PARAMS                  # actuator profile ACT, (N_ACT_SEGMENTS, 4)
@@ -296,7 +298,7 @@ class Simulator:
                            v['linkage.pivot_distance'])
         a, ad, _ = crank_actuator(self.t, self.ACT)
         self.ACT[:] = plan_profile(self.t, a, ad, float(target), v['linkage.crank_rate_limit'],
-                                v['linkage.crank_accel_limit'])
+                                   v['linkage.crank_accel_limit'])
         self.crank_length_target = float(target)
 
     def set_load_torque(self, torque):
@@ -346,8 +348,8 @@ class Simulator:
     # ------------------------------------------------------------------ integration
     def _call(self, t_end, grid, out):
         t = H.advance(self.t, t_end, self.y, self.ms, self.P, self.ACT, self.LIN, self.S,
-                         self.h_io, grid, out, self._events_buf, self.counters, self.ledger,
-                         self._scratch)
+                      self.h_io, grid, out, self._events_buf, self.counters, self.ledger,
+                      self._scratch)
         self.t = t
         switches = self._take_events()
         status = int(self.counters[H.C_STATUS])
