@@ -24,7 +24,7 @@ sim = make_simulator(load_scene('conveyor', {'solver.method': 'rk4'}))
 stepper = PeriodStepper(sim, 1e-3)
 for k in range(400):
     if k % 100 == 0:
-        stepper.command_crank_length(0.04 + 1e-3 * (k // 100))
+        sim.command_crank_length(0.04 + 1e-3 * (k // 100))
     rows.append(stepper.advance().copy())
 sim = make_simulator(load_scene('conveyor'))
 for k in range(400):

@@ -52,7 +52,7 @@ def test_period_stepper_is_the_simulator_to_the_bit(scene, overrides):
     for k, (crank, load) in enumerate(commands(offline, 3000)):
         if crank is not None:
             offline.command_crank_length(crank)
-            stepper.command_crank_length(crank)
+            fast.command_crank_length(crank)
         if load is not None:
             offline.set_load_torque(load)
             fast.set_load_torque(load)

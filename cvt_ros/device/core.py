@@ -253,7 +253,7 @@ class Device:
         self.check_crank_length(a)
         if a == self.sim.crank_length_target:
             return
-        self.stepper.command_crank_length(a)   # = Simulator.command_crank_length, compiled
+        self.sim.command_crank_length(a)   # (one compiled call: physics.drives.replan_into)
         self.crank_target = a
 
     def command_load_torque(self, m):

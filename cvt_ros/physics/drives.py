@@ -12,7 +12,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .compiled import inline_kernel
+from .compiled import FASTMATH, inline_kernel
 from .layout import (
     ACT_A,
     ACT_ACC,
@@ -89,7 +89,9 @@ def hold_profile(t0, crank_length):
     return act
 
 
-@njit(cache=True, error_model='numpy')   # no fast-math: each float operation as written
+# no fast-math: each float operation as written (said explicitly: numba would otherwise compile it
+# with the fast-math flags of a compiled caller, replan_into's)
+@njit(cache=True, error_model='numpy', fastmath=False)
 def plan_into(ACT, t0, a0, v0, target, rate_limit, accel_limit, two):
     """Time-optimal trapezoidal move from (a0 [m], a'0 [m/s]) at t0 [s] to rest at ``target`` [m],
     written into the profile rows ``ACT`` in place (rows beyond the plan: inf).
@@ -138,6 +140,15 @@ def plan_into(ACT, t0, a0, v0, target, rate_limit, accel_limit, two):
     ACT[n, 0], ACT[n, 1], ACT[n, 2], ACT[n, 3] = t, target, 0.0, 0.0
 
 
+@njit(cache=True, error_model='numpy', fastmath=FASTMATH, _nrt=False)
+def replan_into(ACT, t, target, rate_limit, accel_limit, two):
+    """A new command at ``t`` [s]: ``plan_into`` from where the profile ``ACT`` has the crank
+    then (a, a'), in place. The one planner of every crank command (the Simulator's, the device's
+    lockstep period's), one compiled call: offline and lockstep plan the same move to the bit."""
+    a, ad, _ = crank_actuator(t, ACT)
+    plan_into(ACT, t, a, ad, target, rate_limit, accel_limit, two)
+
+
 def plan_profile(t0, a0, v0, target, rate_limit, accel_limit):
     """The profile rows of ``plan_into``'s move, in a new array."""
     act = np.empty((N_ACT_SEGMENTS, 4))
@@ -147,4 +158,5 @@ def plan_profile(t0, a0, v0, target, rate_limit, accel_limit):
 
 
 __all__ = ['motor_torque', 'load_torque', 'crank_actuator', 'next_actuator_break',
-           'hold_profile', 'plan_into', 'plan_profile', 'ACT_A', 'ACT_V', 'ACT_T', 'ACT_ACC']
+           'hold_profile', 'plan_into', 'replan_into', 'plan_profile', 'ACT_A', 'ACT_V', 'ACT_T',
+           'ACT_ACC']

@@ -1,13 +1,13 @@
 """One control period per compiled call: the device's fast path over a Simulator (DEVICE room).
 
 A device in lockstep makes, every period, a crank command, ``Simulator.advance(dt)`` and
-``Simulator.sample()``: three Python-level calls that each unbox a dozen arrays, build Python
-objects and run Python bookkeeping (~15 µs of the ~20 µs a 1 ms period costs). ``PeriodStepper``
-does the same work in one compiled call per period, writing the sample into a buffer it owns,
-with no Python object made per period:
+``Simulator.sample()``: the last two are Python-level calls that each unbox a dozen arrays, build
+Python objects and run Python bookkeeping (~15 µs of the ~20 µs a 1 ms period once cost).
+``PeriodStepper`` does their work in one compiled call per period, writing the sample into a
+buffer it owns, with no Python object made per period:
 
     stepper = PeriodStepper(sim, dt)
-    stepper.command_crank_length(0.05)      # = sim.command_crank_length(0.05)
+    sim.command_crank_length(0.05)          # one compiled call too (physics.drives.replan_into)
     row = stepper.advance()                 # = sim.advance(dt); sim.sample()  (row is reused)
     stepper.switches, stepper.crank_rate    # the clutch switches inside, the actuator's rate
 
@@ -15,8 +15,7 @@ It is bit-identical to those Simulator calls (test_device_period.py checks it ov
 events, angle rebasing and both simulator classes) and leaves the Simulator in the same state, so
 the two can be mixed. The rare cases — clutch events (their ClutchSwitch objects), a full event
 table, the whole-turn rebase of φ1/φ4, a failed step — are finished in Python by the Simulator's
-own code. A crank command plans its profile into ``sim.ACT`` in place (``physics.drives.plan_into``,
-the planner Simulator.command_crank_length uses too).
+own code.
 
 numba caches a kernel keyed on its own file only; the kernels here inline the core's, so their
 cache is dropped when any solver/physics source is newer (physics/compiled.py).
@@ -28,7 +27,7 @@ from numba import njit
 
 from ..physics import layout as L
 from ..physics.compiled import FASTMATH
-from ..physics.drives import crank_actuator, plan_into
+from ..physics.drives import crank_actuator
 from ..physics.dynamics import rhs
 from . import hybrid as H
 from .averaged import AveragedSimulator, averaged_advance, averaged_sample
@@ -60,14 +59,6 @@ DONE = 0          # sampled; no clutch event
 EVENTS = 1        # sampled; clutch events to report (counters[C_EVENTS] rows)
 UNFINISHED = 2    # not sampled: events table full, a failure, or angles to rebase (Python)
 NO_SWITCHES = ()
-
-
-@njit(cache=True, error_model='numpy', fastmath=FASTMATH, _nrt=False)
-def actuator_now(t, ACT, out):
-    """out[0], out[1] = the actuator's (a, a') at t, as Simulator.command_crank_length reads it."""
-    a, ad, _ = crank_actuator(t, ACT)
-    out[0] = a
-    out[1] = ad
 
 
 @njit(cache=True, error_model='numpy', fastmath=FASTMATH, _nrt=False)
@@ -151,20 +142,7 @@ class PeriodStepper:
         self.crank_rate = 0.0
         self._aux = np.empty(L.N_AUX)
         self._ysample = np.empty(L.N_STATE)
-        self._act = np.empty(2)
         self._floats, self._ints, self._events = sim._floats, sim._ints, sim._events_buf
-
-    # ------------------------------------------------------------------ commands
-    def command_crank_length(self, target):
-        """Simulator.command_crank_length(target) for a target the caller has checked against
-        the Grashof bound (the device does): the profile planned into ``sim.ACT`` in place."""
-        sim = self.sim
-        v = sim.values
-        act = self._act
-        actuator_now(sim.t, sim.ACT, act)
-        plan_into(sim.ACT, sim.t, act[0], act[1], float(target), v['linkage.crank_rate_limit'],
-                  v['linkage.crank_accel_limit'], 2.0)
-        sim.crank_length_target = float(target)
 
     # ------------------------------------------------------------------ time
     def advance(self):

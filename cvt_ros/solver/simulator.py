@@ -12,11 +12,12 @@ import numpy as np
 from .. import parameters as params_mod
 from ..physics import layout as L
 from ..physics.clutch import KIND_ENGAGE_IMPACT, KIND_GRAZE, clutch_engages
-from ..physics.drives import crank_actuator, hold_profile, plan_profile
+from ..physics.drives import crank_actuator, hold_profile, replan_into
 from ..physics.dynamics import energy_residual, engage_with_impact, project, rhs
 from ..physics.linkage import (
     check_crank_length,
     check_crank_lengths_fit,
+    grashof_bound,
     kinematics,
     rocker_angle,
 )
@@ -283,23 +284,35 @@ class Simulator:
 
     @property
     def grashof_bound(self):
-        from ..physics.linkage import grashof_bound
-        v = self.values
-        return grashof_bound(v['linkage.rocker_length'], v['linkage.coupler_length'],
-                             v['linkage.pivot_distance'])
+        return self._crank_bound
+
+    @property
+    def values(self):
+        """The scene parameters in force (validated; replaced whole, never changed in place)."""
+        return self._values
+
+    @values.setter
+    def values(self, new):
+        self._values = new
+        # what each crank command needs (a controller may command every period)
+        self._crank_bound = grashof_bound(new['linkage.rocker_length'],
+                                          new['linkage.coupler_length'],
+                                          new['linkage.pivot_distance'])
+        self._crank_limits = (new['linkage.crank_rate_limit'], new['linkage.crank_accel_limit'])
 
     def command_crank_length(self, target):
         """Move the crank length to ``target`` [m] through the rate-limited actuator.
 
         Raises GrashofError (value and bound in the message) for a length the linkage cannot take.
         """
-        v = self.values
-        check_crank_length(target, v['linkage.rocker_length'], v['linkage.coupler_length'],
-                           v['linkage.pivot_distance'])
-        a, ad, _ = crank_actuator(self.t, self.ACT)
-        self.ACT[:] = plan_profile(self.t, a, ad, float(target), v['linkage.crank_rate_limit'],
-                                   v['linkage.crank_accel_limit'])
-        self.crank_length_target = float(target)
+        target = float(target)
+        if not 0.0 <= target < self._crank_bound:   # (NaN too) the full check says why
+            v = self.values
+            check_crank_length(target, v['linkage.rocker_length'], v['linkage.coupler_length'],
+                               v['linkage.pivot_distance'])
+        rate_limit, accel_limit = self._crank_limits
+        replan_into(self.ACT, self.t, target, rate_limit, accel_limit, 2.0)
+        self.crank_length_target = target
 
     def set_load_torque(self, torque):
         """Command the constant part of the load torque [N·m] (acts at the next step).
