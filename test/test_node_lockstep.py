@@ -224,7 +224,7 @@ def run_offline(script=SCRIPT, disturbance=()):
     limits.load_torque) change nothing, and a refused crank command still advances its periods
     with the last valid command; ``disturbance``: (t, load) rows applied at the first period
     k with k·DT >= t."""
-    sim = Simulator(load_scene('conveyor', {'solver.method': 'rk4'}))
+    sim = Simulator(load_scene('conveyor'))   # dopri5: the node's solver in lockstep
     rows = [sim.sample()[COLUMNS]]
     target = sim.crank_length_target
     pending = list(disturbance)
@@ -299,7 +299,7 @@ def test_the_docs_controller_runs_as_written(device, tmp_path):
     # the same law offline: the sample at t gives the command that makes the sample at t + dt
     target, kp, ki = (float(x) for x in re.search(
         r'TARGET, KP, KI, DT = ([\d.e-]+), ([\d.e-]+), ([\d.e-]+)', block).groups())
-    sim = Simulator(load_scene('conveyor', {'solver.method': 'rk4'}))
+    sim = Simulator(load_scene('conveyor'))   # dopri5: the node's solver in lockstep
     rows, integral = [sim.sample()[COLUMNS]], 0.0
     for _ in range(5000):
         error = target - rows[-1][8]

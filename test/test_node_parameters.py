@@ -98,5 +98,19 @@ def test_node_values_refuse_unknown_names_and_allow_rclpy_own():
     assert values['inertia.output'] == 1.5                      # the conveyor scene
 
 
+@pytest.mark.parametrize('time_mode, method', [('realtime', 'rk4'), ('lockstep', 'dopri5'),
+                                               ('fast', 'dopri5')])
+def test_the_solver_follows_the_start_mode_unless_named(time_mode, method, tmp_path):
+    """rk4 (a constant cost per period) when the node starts in realtime, the offline dopri5 in
+    lockstep and fast; a solver named by -p or the scene file is kept in any mode."""
+    assert node_values(overrides={'time_mode': time_mode})['solver.method'] == method
+    assert node_values(overrides={'time_mode': time_mode, 'solver.method': 'rk4'})[
+        'solver.method'] == 'rk4'
+    scene = tmp_path / 'scene.yaml'
+    scene.write_text('cvt_sim:\n  ros__parameters:\n    solver:\n      method: dopri5\n'
+                     f'    time_mode: {time_mode}\n')
+    assert node_values(str(scene))['solver.method'] == 'dopri5'
+
+
 if __name__ == '__main__':
     sys.exit(pytest.main([__file__]))

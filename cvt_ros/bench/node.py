@@ -370,22 +370,23 @@ def run(options, out):
     cases = options.case
     s = options.seconds
     out(f"Command: `{options.command}`. Machine: {_machine()}; load average (1/5/15 min) "
-        f"{_load()} at the start. Scene conveyor, solver rk4, control period 1 ms unless "
-        f"said.\n")
+        f"{_load()} at the start. Scene conveyor, control period 1 ms unless said; the node's "
+        f"own solver: dopri5 in lockstep and fast, rk4 in realtime (docs/node.md).\n")
     if 'inprocess' in cases:
         out('### In-process lockstep (controller = Python callable, no DDS; target ≥ 200×)\n')
         out('| model.fidelity | solver.method | simulated s / wall s | µs per period |')
         out('|---|---|---|---|')
         details = {}
-        for fidelity, method in (('full', 'rk4'), ('full', 'dopri5'), ('rigid_shaft', 'rk4'),
+        for fidelity, method in (('full', 'dopri5'), ('full', 'rk4'), ('rigid_shaft', 'dopri5'),
                                  ('averaged', 'rk4')):
             r = inprocess(max(s, 2.0), fidelity, method)
             details[fidelity, method] = r['pieces']
             out(f"| {fidelity} | {method} | {r['rtf']:.0f}× | {r['per_period'] * 1e6:.1f} |")
-        out('\nrk4 is the node\'s default (a fixed cost per period, for real time); the controller '
-            'kit\'s in-process back end runs the scenario\'s solver, dopri5 unless the scenario '
-            'says otherwise (error-controlled; lockstep does not need a fixed cost).')
-        for method in ('rk4', 'dopri5'):
+        out('\ndopri5 is the solver of lockstep, the node\'s and the controller kit\'s in-process '
+            'back end\'s (the scenario\'s solver, dopri5 unless it says otherwise): error-'
+            'controlled, the offline answer. rk4 is the node\'s solver when it starts in realtime '
+            '(a fixed cost per period, for a deadline); the averaged model always steps with rk4.')
+        for method in ('dopri5', 'rk4'):
             out(f'\nCost of the pieces of a period (full model, {method}, µs):\n')
             out('| piece | µs |')
             out('|---|---|')

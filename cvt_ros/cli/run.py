@@ -212,7 +212,8 @@ def params_command(args):
         from ..device.descriptors import DEFAULT_SCENE, node_values
         values = node_values(args.scene or DEFAULT_SCENE)
         source = (f"cvt_node's start values (base scene {args.scene or DEFAULT_SCENE}; "
-                  f"solver.method rk4 unless the scene sets it)")
+                  "solver.method, unless the scene sets it: rk4 starting in realtime, "
+                  "dopri5 in lockstep or fast)")
     else:
         values = load_scene(args.scene) if args.scene else load_scene(None)
         source = f"scene {resolve(args.scene)}" if args.scene else \

@@ -23,8 +23,11 @@ from ..physics.linkage import GrashofError, grashof_bound
 from ..scene import ROS_OWN_PARAMETERS, SceneError, is_ros_own, read_scene
 
 DEFAULT_SCENE = 'conveyor'
-# rk4 is the node's default solver: fixed sub-steps with events located inside the step, so every
-# control period costs the same (dopri5's adaptive steps make the cost per period vary).
+# The node's solver when neither the scene nor -p names one, by the time_mode it starts in:
+# realtime takes rk4, fixed sub-steps with events located inside the step, so every control period
+# costs the same (dopri5's adaptive steps make it vary); lockstep and fast have no deadline and take
+# the offline default dopri5: error-controlled, the same answer as `cvt-sim run` of the scene, and
+# a third of rk4's right-hand sides per period (BENCHMARKS.md, "ROS node").
 REALTIME_SOLVER = 'rk4'
 # parameters rclpy declares itself: allowed in params files and -p (scene.ROS_OWN_PARAMETERS)
 FOREIGN_PARAMETERS = ROS_OWN_PARAMETERS
@@ -36,22 +39,29 @@ _NUMBER = re.compile(r'[-+]?((\d+\.?\d*|\.\d+)([eE][-+]?\d+)?|inf|infinity|nan)'
 
 def node_values(base_scene=DEFAULT_SCENE, overrides=None):
     """The validated values the node starts with: ``base_scene`` (name or path; None = the
-    built-in defaults, as ``cvt-sim run``), ``solver.method`` rk4 unless the scene sets it, then
-    ``overrides`` (name → value: the params file and ``-p``). An unknown name (a typo must not run
-    the wrong experiment) or an invalid scene raises SceneError with the reason."""
+    built-in defaults, as ``cvt-sim run``), then ``overrides`` (name → value: the params file and
+    ``-p``); ``solver.method``, if neither sets it, by the time_mode it starts in
+    (``start_solver``). An unknown name (a typo must not run the wrong experiment) or an invalid
+    scene raises SceneError with the reason."""
     raw = {} if base_scene is None else read_scene(base_scene)
-    raw.setdefault('solver.method', REALTIME_SOLVER)
     for name, value in sorted((overrides or {}).items()):
         if name in params_mod.SPECS:
             raw[name] = value
         elif not is_ros_own(name):
             raise SceneError(f"unknown parameter {name}{closest_name(name)}; "
                              f"`cvt-sim params --node` lists them")
+    raw.setdefault('solver.method', start_solver(raw.get('time_mode',
+                                                         params_mod.SPECS['time_mode'].default)))
     try:
         return params_mod.validate(raw)
     except (ParameterError, GrashofError) as exc:
         where = f" (base scene {base_scene})" if base_scene else ''
         raise SceneError(f"invalid scene parameters{where}: {exc}") from None
+
+
+def start_solver(time_mode):
+    """The node's solver.method when nothing names one: rk4 in realtime, else dopri5."""
+    return REALTIME_SOLVER if time_mode == 'realtime' else params_mod.SPECS['solver.method'].default
 
 
 def closest_name(name):
@@ -166,5 +176,5 @@ def _yaml_text(value):
 
 
 __all__ = ['DEFAULT_SCENE', 'REALTIME_SOLVER', 'FOREIGN_PARAMETERS', 'node_values',
-           'closest_name', 'upper_bound', 'range_text', 'ros_value', 'coerce', 'describe',
-           'parameter_table']
+           'start_solver', 'closest_name', 'upper_bound', 'range_text', 'ros_value', 'coerce',
+           'describe', 'parameter_table']
