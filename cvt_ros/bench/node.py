@@ -16,7 +16,8 @@ Cases (each ``cvt_node`` in its own process and ROS domain, discovery limited to
   processes. Two controllers: the docs' example as written (rclpy.spin, a default Node), and the
   same law in a lean node (no parameter services, Fast DDS synchronous publication) whose thread
   waits on its state subscription itself (``cvt_ros.device.subscription_wait``, docs/lockstep.md)
-  instead of an executor pass per sample.
+  instead of an executor pass per sample. Beside them the floor: the same round trips between two
+  rclpy processes that only bounce a Float64 (no device, no controller law).
 * ``fast``: ``time_mode fast`` at 1 kHz and 100 Hz publishing, a subscriber to joint_states and
   /clock in another process; simulated s per wall s and the node's CPU (share of one core).
 * ``realtime``: 1 kHz, 10 s (``--seconds`` × 2): share of periods published on time (less than
@@ -245,6 +246,77 @@ def lockstep(seconds, period, lean):
     return r
 
 
+# ------------------------------------------------------------------ the floor: DDS alone
+def pingpong_main(argv):
+    """One side of a Float64 ping-pong between two rclpy processes, no work in between: the
+    lean controller's way of waiting (its own wait set), synchronous publication. ``ping N``
+    sends, waits for each answer and prints one JSON line (round trips, wall, CPU); ``pong``
+    answers until a negative value comes."""
+    role, rounds = argv[0], int(argv[1])
+    import rclpy
+    from rclpy.node import Node as RclNode
+    from rclpy.parameter import Parameter
+    from std_msgs.msg import Float64
+
+    from ..device.subscription_wait import SubscriptionWait
+    rclpy.init()
+    node = RclNode(f'bench_{role}', start_parameter_services=False, parameter_overrides=[
+        Parameter('start_type_description_service', value=False)])
+    got = []
+    publisher = node.create_publisher(Float64, 'ping' if role == 'ping' else 'pong', 10)
+    subscription = node.create_subscription(Float64, 'pong' if role == 'ping' else 'ping',
+                                            lambda msg: got.append(msg.data), 10)
+    wait = SubscriptionWait(node.context, [subscription])
+
+    def answer():
+        while not got:
+            wait.wait(1.0)
+        return got.pop()
+    if role == 'ping':
+        while publisher.get_subscription_count() == 0 or subscription.get_publisher_count() == 0:
+            wait.wait(0.01)
+        for i in range(200):                 # past discovery's own traffic
+            publisher.publish(Float64(data=float(i)))
+            answer()
+        t0, c0 = time.perf_counter(), time.process_time()
+        for i in range(rounds):
+            publisher.publish(Float64(data=float(i)))
+            answer()
+        wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+        publisher.publish(Float64(data=-1.0))
+        print(json.dumps({'rounds': rounds, 'wall': wall, 'cpu': cpu}), flush=True)
+    else:
+        while (value := answer()) >= 0.0:
+            publisher.publish(Float64(data=value))
+    node.destroy_node()
+    rclpy.try_shutdown()
+    return 0
+
+
+def pingpong(rounds):
+    """Round trips of the DDS floor (``pingpong_main``) in a domain of its own."""
+    env = _env(_domain(), RMW_FASTRTPS_PUBLICATION_MODE='SYNCHRONOUS')
+    cmd = [sys.executable, '-m', 'cvt_ros.bench.node', '--pingpong']
+    pong = subprocess.Popen(cmd + ['pong', '0'], env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    try:
+        ping = subprocess.run(cmd + ['ping', str(rounds)], env=env, capture_output=True,
+                              text=True, timeout=600)
+    finally:
+        try:
+            pong.wait(30)
+        except subprocess.TimeoutExpired:
+            pong.kill()
+            pong.wait()
+    lines = [ln for ln in ping.stdout.splitlines() if ln.startswith('{')]
+    if not lines:
+        raise RuntimeError(f"the ping-pong gave no result: {ping.stderr[-500:]}")
+    r = json.loads(lines[-1])
+    r.update(round_trip=r['wall'] / r['rounds'], rtf=1e-3 * r['rounds'] / r['wall'],
+             ping_cpu=r['cpu'] / r['wall'])
+    return r
+
+
 # ------------------------------------------------------------------ free-running modes
 class Watcher:
     """A subscriber in this process (another process than the node's): joint_states stamps,
@@ -427,6 +499,11 @@ def run(options, out):
                 out(f"| {period * 1e3:g} ms | {who} | {_best_median(runs, 'rtf', '.2f')} | "
                     f"{r['round_trip'] * 1e6:.0f} | {_pct(r['node_cpu'])} | "
                     f"{_pct(r['controller_cpu'])} |")
+        runs = [pingpong(int(max(s, 2.0) * 1000)) for _ in range(options.repeat)]
+        r = min(runs, key=lambda x: x['round_trip'])
+        out(f"| (1 ms) | the floor: no device — two rclpy processes bounce a Float64, waiting as "
+            f"the lean controller does | {_best_median(runs, 'rtf', '.2f')} | "
+            f"{r['round_trip'] * 1e6:.0f} | – | {_pct(r['ping_cpu'])} (one side) |")
         out('')
     if 'fast' in cases:
         out('### Fast mode (target ≥ 90 % of a core; ≥ 5× at 1 kHz publishing, ≥ 50× at '
@@ -482,9 +559,12 @@ def main(argv=None):
     parser.add_argument('--write', metavar='FILE', help='put the tables into FILE (section '
                         f'"{SECTION[3:]}"), e.g. BENCHMARKS.md')
     parser.add_argument('--controller', nargs=3, help=argparse.SUPPRESS)
+    parser.add_argument('--pingpong', nargs=2, help=argparse.SUPPRESS)
     options = parser.parse_args(argv)
     if options.controller:
         return controller_main(options.controller)
+    if options.pingpong:
+        return pingpong_main(options.pingpong)
     options.command = './run.sh bench node ' + ' '.join(argv if argv is not None
                                                          else sys.argv[1:])
     lines = []
