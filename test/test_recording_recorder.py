@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import yaml
 from mcap.reader import make_reader
-from rclpy.serialization import deserialize_message
+from rclpy.serialization import deserialize_message, serialize_message
 from recording_helpers import child_env, progress_until
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2.metadata import parse_qos
@@ -94,6 +94,32 @@ def test_fast_cdr_encoders_decode_like_rclpy_messages():
     assert deserialize_message(I.float64_cdr(0.04), Float64) == I.command_msg(0.04)
     with pytest.raises(ValueError, match='joints'):
         I.decode_joint_state_cdr(I.joint_state_cdr(row, names=['a', 'b', 'c', 'd']))
+
+
+def test_stream_decoder_reads_what_rclpy_reads():
+    """JointStateDecoder (the dds harness's raw samples): its one-struct fast path and its
+    general parser agree with rclpy's message, also when the layout changes under it."""
+    rng = np.random.default_rng(7)
+    decoder = I.JointStateDecoder()
+    streams = [(I.JOINTS, ''), (I.JOINTS, ''), (['x_' + j for j in I.JOINTS], 'base'),
+               (I.DEVICE_JOINTS, ''), (I.DEVICE_JOINTS, '')]
+    for names, frame in streams:
+        msg = JointState(name=list(names), position=rng.normal(size=len(names)).tolist(),
+                         velocity=rng.normal(size=len(names)).tolist(),
+                         effort=rng.normal(size=len(names)).tolist())
+        msg.header.stamp.sec, msg.header.stamp.nanosec = int(rng.integers(0, 2**31)), 999_999_999
+        msg.header.frame_id = frame
+        data = serialize_message(msg)
+        ns, position, velocity, effort = decoder.decode(data)
+        assert ns == msg.header.stamp.sec * 1_000_000_000 + 999_999_999
+        assert I.joint_state_stamp_ns(data) == ns
+        assert decoder.names == list(names)
+        assert (position, velocity, effort) == (tuple(msg.position), tuple(msg.velocity),
+                                                tuple(msg.effort))
+    partial = JointState(name=['a', 'b'], position=[1.0, 2.0])   # no velocity, no effort
+    assert decoder.decode(serialize_message(partial))[1:] == ((1.0, 2.0), (), ())
+    with pytest.raises(ValueError):
+        decoder.decode(b'\x00\x01\x00\x00' + b'\xff' * 20)
 
 
 # ---------------------------------------------------------------------------------- the file

@@ -35,7 +35,7 @@ import numpy as np
 import yaml
 
 from ..device import domains
-from ..interface import STATE
+from ..interface import STATE, joint_state_stamp_ns
 from ..solver.output import COL, N_COLUMNS
 from ..solver.simulator import SimulationError
 from .plants import plant_values
@@ -45,6 +45,7 @@ PERIOD_TIMEOUT_S = 30.0     # one lockstep period (a loaded machine stalls, it d
 _POS = [COL[c] for c in ('phi1', 'phi2', 'phi3', 'phi4')]
 _VEL = [COL[c] for c in ('omega1', 'omega2', 'omega3', 'omega4')]
 _EFF = [COL[c] for c in ('motor_torque', 'clutch_torque', 'shaft_torque', 'load_torque')]
+_COLUMNS = _POS + _VEL + _EFF
 
 
 class DdsError(SimulationError):
@@ -66,21 +67,18 @@ def write_params_file(path, params):
                                          sort_keys=True))
 
 
-def row_from_state(msg, order, actuator):
-    """A sample row (COLUMNS, NaN where a message has no value) from a ``state`` JointState."""
+def row_from_state(ns, position, velocity, effort, order, actuator):
+    """A sample row (COLUMNS, NaN where a message has no value) from a ``state`` JointState's
+    stamp [ns] and values (``interface.JointStateDecoder``); ``order``: the device's joints in
+    the message (``interface.joint_order``), ``actuator``: the crank_length joint's index."""
     row = np.full(N_COLUMNS, np.nan)
-    ns = msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
     row[COL['t']] = ns * 1e-9
-    p, v, e = msg.position, msg.velocity, msg.effort
-    for j, i in enumerate(order):
-        row[_POS[j]] = p[i]
-        row[_VEL[j]] = v[i]
-        row[_EFF[j]] = e[i]
+    row[_COLUMNS] = [values[i] for values in (position, velocity, effort) for i in order]
     row[COL['twist']] = row[COL['phi3']] - row[COL['phi4']]
     row[COL['engaged']] = 1.0 if row[COL['clutch_torque']] > 0.0 else 0.0
     if actuator is not None:
-        row[COL['crank_length']] = p[actuator]
-    return row, ns
+        row[COL['crank_length']] = position[actuator]
+    return row
 
 
 class DdsPlant:
@@ -152,10 +150,13 @@ class DdsPlant:
         self.context = Context()
         rclpy.init(context=self.context, domain_id=self.lease.domain)
         self.node = rclpy.create_node('cvt_scenario_harness', context=self.context)
-        self.samples = []          # (ns, msg) of state messages not yet taken
+        self.samples = []          # state messages not yet taken (CDR bytes)
         self.switch_states = []    # clutch_engaged values not yet taken
+        # raw: the samples' bytes, read by one struct call (rclpy's message objects cost ~12 µs
+        # each, a good part of what a lockstep round trip spends in this process)
+        self._decoder = interface.JointStateDecoder()
         state = self.node.create_subscription(JointState, STATE, self.samples.append,
-                                              interface.state_qos())
+                                              interface.state_qos(), raw=True)
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
         every = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
                            durability=DurabilityPolicy.VOLATILE)   # each message is a switch
@@ -208,17 +209,21 @@ class DdsPlant:
         self._spin_until(lambda: any(self._ns(m) > self._last_ns for m in self.samples),
                          PERIOD_TIMEOUT_S if self._last_ns >= 0 else START_TIMEOUT_S,
                          'sample from cvt_node', samples_only=True)
-        msg = max(self.samples, key=self._ns)     # realtime: the newest; lockstep: the next
+        data = max(self.samples, key=self._ns)     # realtime: the newest; lockstep: the next
         self.samples.clear()
+        try:
+            ns, position, velocity, effort = self._decoder.decode(data)
+        except ValueError as exc:
+            raise DdsError(f"a state message that is not a JointState: {exc}") from None
         if self._order is None:
             from ..interface import joint_order
-            names = list(msg.name)
+            names = self._decoder.names
             self._order = joint_order(names)
             hits = [i for i, n in enumerate(names) if n.endswith('crank_length')]
             self._actuator = hits[0] if len(hits) == 1 else None
             if self._order is None:
                 raise DdsError(f"state without the device's joints: {names}")
-        row, ns = row_from_state(msg, self._order, self._actuator)
+        row = row_from_state(ns, position, velocity, effort, self._order, self._actuator)
         switches = []
         for engaged in self.switch_states:
             if self._engaged is not None and engaged != self._engaged:
@@ -229,8 +234,8 @@ class DdsPlant:
         return row, switches
 
     @staticmethod
-    def _ns(msg):
-        return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+    def _ns(data):
+        return joint_state_stamp_ns(data)
 
     # ------------------------------------------------------------------ plant protocol
     def start(self):
@@ -291,9 +296,6 @@ class DdsPlant:
         Stops the node (SIGINT finishes the file)."""
         if not self.recording:
             return None
-        from rclpy.serialization import deserialize_message
-        from sensor_msgs.msg import JointState
-
         from ..recording.reader import read_messages
         self._stop(self.proc)
         end_ns = round(t_end * 1e9)
@@ -311,8 +313,8 @@ class DdsPlant:
                     switches.append((m.log_time_ns * 1e-9, state))
                 engaged = state
                 continue
-            rows.append(row_from_state(deserialize_message(m.data, JointState), self._order,
-                                       self._actuator)[0])
+            rows.append(row_from_state(*self._decoder.decode(m.data), self._order,
+                                       self._actuator))
         return np.array(rows), switches, (commands if self.external else None)
 
     @staticmethod
