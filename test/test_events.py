@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from cvt_ros.bench.scaling import VARIANTS
@@ -20,12 +20,29 @@ from cvt_ros.solver.simulator import Simulator
 
 RTOLS = (1e-4, 1e-6, 1e-8, 1e-10)
 SPAN = 0.5
+# A clutch that comes within this (slip relative to the speeds) of a contact it does not make is
+# a matter of tolerance: whether it touches is decided by errors of that size, and at rtol 1e-4
+# the rocker speed's global error after 0.3 s is ~5e-5 of it (test below)
+NEAR_MISS = 1e-3
 
 
-def switch_count(values, rtol, span=SPAN):
+def switch_count(values, rtol, span=SPAN, sample_dt=0.01):
     sim = Simulator(dict(values, **{'solver.rtol': rtol, 'solver.atol': rtol * 1e-2}))
-    result = sim.run(span, 0.01)
+    result = sim.run(span, sample_dt)
     return len([s for s in result.switches if s.kind != 'graze']), result
+
+
+def closest_miss(result):
+    """The smallest slip (ω3 − ω2, relative to the larger speed) at a minimum inside an open
+    stretch of the samples: how near the clutch came to a contact it did not make (the slip
+    running down to an engagement has no inner minimum)."""
+    s = result.samples
+    w2, w3 = s[:, COL['omega2']], s[:, COL['omega3']]
+    slip = (w3 - w2) / np.maximum(1.0, np.maximum(abs(w2), abs(w3)))
+    open_ = s[:, COL['engaged']] == 0.0
+    inner = (open_[1:-1] & open_[:-2] & open_[2:] & (slip[1:-1] <= slip[:-2])
+             & (slip[1:-1] <= slip[2:]))
+    return float(slip[1:-1][inner].min(initial=np.inf))
 
 
 @pytest.mark.parametrize('variant', sorted(VARIANTS))
@@ -60,9 +77,32 @@ def machines(draw):
           suppress_health_check=[HealthCheck.too_slow])
 @given(values=machines(), variant=st.sampled_from(sorted(VARIANTS)))
 def test_random_machines_switch_the_same_at_every_tolerance(values, variant):
+    """Random machines whose clutch never misses a contact by less than NEAR_MISS (the
+    reference run at rtol 1e-10, sampled at 20 µs, says): a nearer miss is decided by the
+    tolerance itself (test_a_near_miss_is_a_matter_of_tolerance)."""
     values = dict(load_scene('paper'), **values, **VARIANTS[variant])
-    counts = {rtol: switch_count(values, rtol, 0.3)[0] for rtol in (1e-4, 1e-7, 1e-10)}
+    reference, result = switch_count(values, 1e-10, 0.3, 2e-5)
+    assume(closest_miss(result) > NEAR_MISS)
+    counts = {rtol: switch_count(values, rtol, 0.3)[0] for rtol in (1e-4, 1e-7)}
+    counts[1e-10] = reference
     assert len(set(counts.values())) == 1, counts
+
+
+def test_a_near_miss_is_a_matter_of_tolerance():
+    """A machine hypothesis found (2026-11-23): at 0.1887 s the open clutch comes within
+    1.7e-3 rad/s (3e-5 of the rocker's 54 rad/s) of the rocker without touching it. rtol 1e-5 …
+    1e-10 agree (14 switches); at rtol 1e-4 the rocker speed is 3e-3 rad/s off by then and the
+    clutch catches — a 0.1 ms engagement more. Not a missed event: an event that errors of the
+    chosen size decide, which is why the random-machine property excludes such misses."""
+    values = dict(load_scene('paper'), **{
+        'linkage.crank_length': 0.03793842151731348, 'inertia.motor': math.exp(-3.0),
+        'inertia.rocker': math.exp(-4.9140625), 'inertia.clutch_driven': 0.009842507929860982,
+        'inertia.output': math.exp(0.005), 'shaft.stiffness': 258.329139813983,
+        'shaft.damping': 0.04083546106285367, 'load.torque': 0.0,
+        'initial.crank_speed': 100.0})
+    reference, result = switch_count(values, 1e-10, 0.3, 2e-5)
+    assert 1e-5 < closest_miss(result) < 1e-4 < NEAR_MISS
+    assert [switch_count(values, rtol, 0.3)[0] for rtol in (1e-5, 1e-7)] == [reference] * 2
 
 
 @pytest.mark.parametrize('scene', ['paper', 'stiff_shaft'])
