@@ -16,8 +16,10 @@ Cases (each ``cvt_node`` in its own process and ROS domain, discovery limited to
   processes. Two controllers: the docs' example as written (rclpy.spin, a default Node), and the
   same law in a lean node (no parameter services, Fast DDS synchronous publication) whose thread
   waits on its state subscription itself (``cvt_ros.device.subscription_wait``, docs/lockstep.md)
-  instead of an executor pass per sample. Beside them the floor: the same round trips between two
-  rclpy processes that only bounce a Float64 (no device, no controller law).
+  instead of an executor pass per sample, and reads the samples' bytes
+  (``interface.JointStateDecoder``) instead of rclpy's message objects. Beside them the floor:
+  the same round trips between two rclpy processes that only bounce a Float64 (no device, no
+  controller law).
 * ``fast``: ``time_mode fast`` at 1 kHz and 100 Hz publishing, a subscriber to joint_states and
   /clock in another process; simulated s per wall s and the node's CPU (share of one core).
 * ``realtime``: 1 kHz, 10 s (``--seconds`` × 2): share of periods published on time (less than
@@ -182,14 +184,21 @@ def controller_main(argv):
             self.start = None
             self.command_publisher = self.create_publisher(Float64, 'crank_length_cmd', 10)
             latched = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-            self.state_subscription = self.create_subscription(
-                JointState, 'state', self.state_callback, latched)
+            if lean:   # the samples' bytes, read by one struct call (no rclpy message object)
+                from ..interface import JointStateDecoder
+                decode = JointStateDecoder().decode
+                self.state_subscription = self.create_subscription(
+                    JointState, 'state', lambda data: self.state_callback(decode(data)[2]),
+                    latched, raw=True)
+            else:
+                self.state_subscription = self.create_subscription(
+                    JointState, 'state', lambda msg: self.state_callback(msg.velocity), latched)
 
-        def state_callback(self, msg):
+        def state_callback(self, velocity):
             if self.start is None:
                 self.start = (time.perf_counter(), time.process_time())
                 print('started', flush=True)   # the bench takes the node's CPU from here
-            error = PI_TARGET - msg.velocity[3]
+            error = PI_TARGET - velocity[3]
             self.integral += error * dt
             crank = min(max(0.04 + PI_KP * error + PI_KI * self.integral, 0.0), 0.09)
             self.count += 1
@@ -494,7 +503,7 @@ def run(options, out):
                 runs = [lockstep(max(s, 2.0) * (1 if period < 5e-3 else 5), period, lean)
                         for _ in range(options.repeat)]
                 r = min(runs, key=lambda x: x['round_trip'])
-                who = ('lean rclpy node waiting on its own wait set, synchronous publication'
+                who = ('lean rclpy node: its own wait set, raw samples, synchronous publication'
                        if lean else 'docs/lockstep.md example (rclpy.spin)')
                 out(f"| {period * 1e3:g} ms | {who} | {_best_median(runs, 'rtf', '.2f')} | "
                     f"{r['round_trip'] * 1e6:.0f} | {_pct(r['node_cpu'])} | "
