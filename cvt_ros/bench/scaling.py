@@ -100,10 +100,10 @@ def section_scaling(times, stiffness, sweep, cfg):
     if stiffness:
         L_ += [f"**With shaft stiffness** (stiff_shaft scene, J3 = 1e-4 kg·m², c varied, "
                f"{stiffness[0]['span']:g} s from rest, defaults). The open clutch's ringing "
-               "mode √(c·(1/J3 + 1/J4)) is solved in closed form (sub-intervals of ≤ 3 rad "
-               "watch the slip); the engaged twist mode is integrated, so its rate sets the "
-               "steps; the simulator warns when that needs more than 2e6 steps per simulated "
-               "second.", '']
+               "mode √(c·(1/J3 + 1/J4)) is solved in closed form (sub-intervals of ≤ 3 rad, "
+               "0.75 rad near contact, watch the slip); the engaged twist mode is integrated, "
+               "so its rate sets the steps; the simulator warns when that needs more than 2e6 "
+               "steps per simulated second.", '']
         body = []
         for r in stiffness:
             if r['status'] != 'ok':
