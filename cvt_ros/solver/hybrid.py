@@ -161,10 +161,11 @@ MAX_EVENTS_AT_ONE_TIME = 8
 # The open output's slip is watched on sub-intervals, in rad of its fastest mode. A look is the
 # Hermite cubic of the slip under its error bound (|a|·|λ|⁴·hs⁴/384 for a mode of amplitude a),
 # refined where the bound could hide a dip (_split_dip), so the length trades looks against
-# refinements: 3 rad (bound 0.21·|a|) took 66 % fewer looks than 0.75 rad on the stiff shaft and
-# 8–15 % less time, the same switches. Near its band (just after a release, or after a crossing
-# of the rocker speed's interpolant alone) a slip is not watched for a crossing, and one that
-# leaves the band downwards within a look is found late, not located: short looks there.
+# refinements: on the stiff shaft 3 rad (bound 0.21·|a|) took 62 % fewer looks than 0.75 rad
+# everywhere and 16–24 % less time, the same switches. Near its band (just after a release, or
+# after a crossing of the rocker speed's interpolant alone) a slip is not watched for a crossing,
+# and one that leaves the band downwards within a look is found late, not located: short looks
+# there.
 EXACT_PHASE_STEP = 0.75  # [rad] near the band, and while a fast real mode is alive
 ARMED_PHASE_STEP = 3.0   # [rad] while the slip is clearly positive (armed, > 2 bands)
 PI_BETA = 0.04           # Hairer's DOPRI5: h·err^−(0.2 − 0.75β)·err_old^β
