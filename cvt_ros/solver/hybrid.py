@@ -446,7 +446,7 @@ def _split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arm
     dense_coefficients(DOPRI5, h, y, y, K, OMEGA2, Cv)
     fast_rate = 0.0
     fast_until = t
-    ring = 0.0
+    h_near = math.inf   # [s] a look's length near the slip's band
     if exact:
         modal_coordinates(z, P, LIN, W)
         if armed and g0 > 0.0:
@@ -466,6 +466,8 @@ def _split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arm
         ring = P[P_OUTPUT_RING]
         n_exact = max(1, int(math.ceil(ring * h / ARMED_PHASE_STEP))) if ring > 0.0 else 1
         h_out = h / n_exact
+        if ring > 0.0:
+            h_near = EXACT_PHASE_STEP / ring
         fast_rate, fast_until = _fast_real_modes(
             t, h, LIN, W, SLIP_TOLERANCE * (1.0 + abs(z[Z_OMEGA3])))
         dw3_0 = _omega3_rate(z, P)
@@ -481,15 +483,15 @@ def _split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arm
     tau = t
     fire = _NO_EVENT
     dv0 = _poly_rate(Cv, 0.0, h)
-    band = SLIP_TOLERANCE * (1.0 + abs(Cv[0]) + abs(z[Z_OMEGA3]))   # the slip's, as gtol below
+    gtol = SLIP_TOLERANCE * (1.0 + abs(Cv[0]) + abs(z[Z_OMEGA3]))   # the slip's band at tau
     factor = 1.0
     while tau < t1:
         if exact:
             hs = h_out
             if tau < fast_until:
                 hs = min(hs, EXACT_PHASE_STEP / fast_rate)
-            if ring > 0.0 and not (armed and g0 > 2.0 * band):
-                hs = min(hs, EXACT_PHASE_STEP / ring)
+            if not (armed and g0 > 2.0 * gtol):
+                hs = min(hs, h_near)
             last = tau + hs >= t1 * (1.0 - 1e-15) or t1 - (tau + hs) < 1e-9 * hs
             if last:
                 hs = t1 - tau
@@ -583,7 +585,6 @@ def _split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arm
             z[i] = z_new[i]
             Ko[0, i] = Ko[6, i]
         g0 = g1
-        band = gtol
         dv0 = dv1
         dw3_0 = dw3_1
         if not armed and abs(g1) > gtol:
