@@ -21,6 +21,7 @@ from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters, SetParameters
 from rclpy.context import Context
 from rclpy.duration import Duration
+from rclpy.exceptions import InvalidHandle
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -94,6 +95,7 @@ class NodeProcess:
 
     def __init__(self, domain, ros_args=(), args=(), command=None):
         self.log = tempfile.TemporaryFile(mode='w+')
+        self._final_output = None   # the log's text once the log is closed
         cmd = list(command or [sys.executable, '-m', 'cvt_ros.device'])
         cmd += list(args) + ['--ros-args'] + list(ros_args)
         self.proc = subprocess.Popen(cmd, env=ros_env(domain), stdout=self.log,
@@ -101,6 +103,8 @@ class NodeProcess:
                                      pass_fds=_lock_fds(domain))
 
     def output(self):
+        if self._final_output is not None:   # after the with block (an assert's message)
+            return self._final_output
         self.log.flush()
         self.log.seek(0)
         return self.log.read()
@@ -127,6 +131,7 @@ class NodeProcess:
     def __exit__(self, *exc):
         if self.alive():
             self.stop(signal.SIGINT, 5.0)
+        self._final_output = self.output()
         self.log.close()
 
 
@@ -173,6 +178,11 @@ class Probe:
         while self.context.ok():
             try:
                 self.executor.spin_once(timeout_sec=0.05)
+            except InvalidHandle:
+                # the test thread destroyed a subscription or node while this thread gathered
+                # the wait set (rclpy takes the entity list before it holds the handles); the
+                # executor gathers anew on the next spin_once
+                continue
             except Exception:   # noqa: BLE001 — shutting down
                 if not self.context.ok():
                     return
