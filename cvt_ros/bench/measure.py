@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..solver import hybrid as H
+from ..solver import advance_layout as AL
 from ..solver.cvode import solve_cvode
 from ..solver.output import COL
 from ..solver.reference import solve_reference
@@ -38,16 +38,16 @@ class Outcome:
 
 def run_project(values, duration):
     sim = Simulator(values)
-    steps0, rejected0 = int(sim.counters[H.C_STEPS]), int(sim.counters[H.C_REJECTED])
+    steps0, rejected0 = int(sim.counters[AL.C_STEPS]), int(sim.counters[AL.C_REJECTED])
     t0 = time.perf_counter()
     switches = sim.advance(duration)
     wall = time.perf_counter() - t0
     row = sim.sample()
     return Outcome(float(row[COL['phi4']]), float(row[COL['omega4']]),
                    [s.t for s in switches if s.kind != 'graze'], wall,
-                   int(sim.counters[H.C_STEPS]) - steps0,
+                   int(sim.counters[AL.C_STEPS]) - steps0,
                    sim.energy_balance()['relative_residual'], sim.h_fixed,
-                   int(sim.counters[H.C_REJECTED]) - rejected0)
+                   int(sim.counters[AL.C_REJECTED]) - rejected0)
 
 
 def run_scipy(values, duration, method, rtol):

@@ -111,7 +111,8 @@ def inprocess(seconds, fidelity='full', method='rk4'):
     Device.advance_row per period, as the controller kit's in-process back end does."""
     from ..device.core import Device
     from ..scene import load_scene
-    from ..solver import hybrid as H
+    from ..solver import advance_layout as AL
+    from ..solver import hybrid
     from ..solver.output import COL
 
     values = load_scene('conveyor', {'solver.method': method, 'model.fidelity': fidelity})
@@ -146,15 +147,15 @@ def inprocess(seconds, fidelity='full', method='rk4'):
     if fidelity != 'averaged':
         args = (sim.y, sim.ms, sim.P, sim.ACT, sim.LIN, sim.S, sim.h_io, sim._empty_grid,
                 sim._empty_out, sim._events_buf, sim.counters, sim.ledger, sim._scratch)
-        steps0, rhs0 = int(sim.counters[H.C_STEPS]), int(sim.counters[H.C_RHS])
+        steps0, rhs0 = int(sim.counters[AL.C_STEPS]), int(sim.counters[AL.C_RHS])
         t0 = time.perf_counter()
         for _ in range(k):
-            sim.t = H.advance(sim.t, sim.t + dt, *args)
-            sim.counters[H.C_EVENTS] = 0
+            sim.t = hybrid.advance(sim.t, sim.t + dt, *args)
+            sim.counters[AL.C_EVENTS] = 0
         pieces['of which the core integration alone (hybrid.advance)'] = \
             (time.perf_counter() - t0) / k
         pieces['  (steps, right-hand sides per period)'] = (
-            (int(sim.counters[H.C_STEPS]) - steps0) / k, (int(sim.counters[H.C_RHS]) - rhs0) / k)
+            (int(sim.counters[AL.C_STEPS]) - steps0) / k, (int(sim.counters[AL.C_RHS]) - rhs0) / k)
     return {'periods': n, 'wall': wall, 'rtf': n * dt / wall, 'per_period': wall / n,
             'pieces': pieces}
 

@@ -5,7 +5,7 @@ import time
 import tracemalloc
 
 from ..scene import available_scenes, load_scene
-from ..solver import hybrid as H
+from ..solver import advance_layout as AL
 from ..solver.simulator import SimulationError, Simulator
 from .report import fmt, table
 
@@ -60,7 +60,7 @@ def stiffness_scaling(cfg, log):
         row.update(status='ok', wall=time.perf_counter() - t0, steps=result.steps,
                    rejected=result.rejected, rhs=result.diagnostics['rhs_evaluations'],
                    switches=result.switch_count,
-                   substeps=int(sim.counters[H.C_SUBSTEPS]))
+                   substeps=int(sim.counters[AL.C_SUBSTEPS]))
         rows.append(row)
         log(f"scaling: c = {c:g}: {row['wall']:.2f} s for {cfg.stiffness_span:g} s")
     return rows

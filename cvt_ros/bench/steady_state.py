@@ -17,7 +17,7 @@ from ..physics import layout as L
 from ..physics.compiled import allocating_kernel
 from ..physics.dynamics import rhs
 from ..scene import load_scene
-from ..solver import hybrid as H
+from ..solver import advance_layout as AL
 from ..solver.output import COL
 from ..solver.reference import solve_reference
 from ..solver.simulator import Simulator
@@ -83,15 +83,15 @@ def steady_row(name, span, with_scipy=True):
     wall = time.perf_counter() - wall0
     d = sim.counters - c0
     switches = sim.switch_count - sw0
-    n_rhs = int(d[H.C_RHS])
+    n_rhs = int(d[AL.C_RHS])
     per_rhs = rhs_cost(values, n_rhs)
     ref = Simulator(dict(values, **TIGHT))
     ref.advance(WARM)
     ref.advance(span)
     phi4_ref = ref.sample()[COL['phi4']]
     row = {'scene': name, 'span': span, 'wall': wall, 'rhs': n_rhs, 'per_rhs': per_rhs,
-           'floor': n_rhs * per_rhs, 'steps': int(d[H.C_STEPS]),
-           'rejected': int(d[H.C_REJECTED]), 'switches': switches,
+           'floor': n_rhs * per_rhs, 'steps': int(d[AL.C_STEPS]),
+           'rejected': int(d[AL.C_REJECTED]), 'switches': switches,
            'phi4_err': abs(sim.sample()[COL['phi4']] - phi4_ref) / abs(phi4_ref)}
     if with_scipy:
         r = solve_reference(values, WARM + span, method='DOP853', rtol=1e-4, atol=1e-6,

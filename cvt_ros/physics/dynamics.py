@@ -348,7 +348,7 @@ def disengaged_output_rates(theta, w3, w4, P):
     J3·ω3' = −Ts, J4·ω4' = Ts − M4, Ts = c·θ + k·(ω3 − ω4). Returns (θ', ω3', ω4', M4, Ts).
 
     It does not depend on the input subsystem, which lets the solver integrate it on its own,
-    faster clock (solver/hybrid.py) at the cost of a few flops per step.
+    faster clock (solver/slip_watch.py) at the cost of a few flops per step.
     """
     m4 = load_torque(w4, P)
     ts = P[P_C] * theta + P[P_KD] * (w3 - w4)

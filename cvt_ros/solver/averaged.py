@@ -28,7 +28,7 @@ from ..physics import layout as L
 from ..physics.compiled import allocating_kernel, kernel
 from ..physics.drives import crank_actuator, load_torque, motor_torque, next_actuator_break
 from ..physics.linkage import kinematics, rocker_angle
-from . import hybrid as H
+from . import advance_layout as AL
 from .output import COL, N_COLUMNS, write_sample
 from .simulator import Simulator
 from .steppers import rk4_combine, rk4_stage
@@ -242,7 +242,7 @@ def averaged_advance(t, t_end, y, P, ACT, A, W1, M, R, j1e, grid, out, counters)
     ysample = np.empty(n)
     aux = np.empty(L.N_AUX)
     while t < t_end:
-        i = counters[H.C_NEXT_SAMPLE]
+        i = counters[AL.C_NEXT_SAMPLE]
         t_next = min(t + STEP, t_end, next_actuator_break(t, ACT))
         if i < grid.shape[0] and grid[i] < t_next:
             t_next = grid[i]
@@ -253,12 +253,12 @@ def averaged_advance(t, t_end, y, P, ACT, A, W1, M, R, j1e, grid, out, counters)
             averaged_rates(ts, ytmp, P, ACT, A, W1, M, R, j1e, K[s])
         rk4_combine(y, h, K, y)
         t = t_next
-        counters[H.C_STEPS] += 1
+        counters[AL.C_STEPS] += 1
         while i < grid.shape[0] and grid[i] <= t:
             md = averaged_sample(t, y, P, ACT, A, W1, M, R, j1e, aux, ysample)
             write_sample(out[i], grid[i], ysample, L.ENGAGED if md > 0.0 else L.DISENGAGED, aux)
             i += 1
-        counters[H.C_NEXT_SAMPLE] = i
+        counters[AL.C_NEXT_SAMPLE] = i
     return t
 
 
@@ -285,7 +285,7 @@ class AveragedSimulator(Simulator):
         m = self.ratio_map
         self.t = averaged_advance(self.t, t_end, self.y, self.P, self.ACT, m.a, m.w1, m.m,
                                   m.ratio, self.j1e, grid, out, self.counters)
-        return [], H.STATUS_OK
+        return [], AL.STATUS_OK
 
     def _state_and_aux(self):
         m = self.ratio_map

@@ -29,7 +29,8 @@ from ..physics import layout as L
 from ..physics.compiled import FASTMATH
 from ..physics.drives import crank_actuator
 from ..physics.dynamics import rhs
-from . import hybrid as H
+from . import advance_layout as AL
+from . import hybrid
 from .averaged import AveragedSimulator, averaged_advance, averaged_sample
 from .output import COL, N_COLUMNS, write_sample
 from .simulator import (
@@ -85,30 +86,30 @@ def hybrid_period(t, dt, h_fixed, F, I, LIN, events, turns1, turns4):
     ACT = F[F_ACT:F_S].reshape((L.N_ACT_SEGMENTS, 4))
     S = F[F_S:F_H]
     no_grid = F[:0]
-    if S[H.S_METHOD] == RK4:
+    if S[AL.S_METHOD] == RK4:
         n = max(1, math.ceil(dt / h_fixed - 1e-9))
-        S[H.S_H_FIXED] = dt / n
+        S[AL.S_H_FIXED] = dt / n
     ms = I[I_MS:I_COUNTERS]
     counters = I[I_COUNTERS:]
-    t = H.advance(t, t + dt, y, ms, P, ACT, LIN, S, F[F_H:F_LEDGER], no_grid,
-                  no_grid.reshape((0, N_COLUMNS)), events, counters, F[F_LEDGER:F_DY],
-                  F[F_SCRATCH:F_SIZE])
-    if counters[H.C_STATUS] != H.STATUS_OK:
+    t = hybrid.advance(t, t + dt, y, ms, P, ACT, LIN, S, F[F_H:F_LEDGER], no_grid,
+                       no_grid.reshape((0, N_COLUMNS)), events, counters, F[F_LEDGER:F_DY],
+                       F[F_SCRATCH:F_SIZE])
+    if counters[AL.C_STATUS] != AL.STATUS_OK:
         return t, UNFINISHED, 0.0
     sampled, rate = _finish(t, y, ms[0], P, ACT, turns1, turns4, F[F_DY:F_AUX],
                             F[F_AUX:F_ROW], F[F_ROW:F_SCRATCH])
     if not sampled:
         return t, UNFINISHED, 0.0
-    return t, EVENTS if counters[H.C_EVENTS] > 0 else DONE, rate
+    return t, EVENTS if counters[AL.C_EVENTS] > 0 else DONE, rate
 
 
 @njit(cache=True, error_model='numpy', fastmath=FASTMATH)   # (the averaged kernels allocate)
 def averaged_period(t, dt, h_fixed, y, P, ACT, A, W1, M, R, j1e, S, grid, out, counters,
                     turns1, turns4, aux, ysample, row):
     """AveragedSimulator.advance(dt) then .sample() into ``row``: (t, code, crank rate)."""
-    if S[H.S_METHOD] == RK4:
+    if S[AL.S_METHOD] == RK4:
         n = max(1, math.ceil(dt / h_fixed - 1e-9))
-        S[H.S_H_FIXED] = dt / n
+        S[AL.S_H_FIXED] = dt / n
     t = averaged_advance(t, t + dt, y, P, ACT, A, W1, M, R, j1e, grid, out, counters)
     if (abs(math.floor(y[L.PHI1] / TWO_PI)) >= REBASE_TURNS
             or abs(math.floor(y[L.PHI4] / TWO_PI)) >= REBASE_TURNS):
@@ -169,10 +170,10 @@ class PeriodStepper:
             self.crank_rate = rate
             return self.row
         # the rare rest, by the Simulator's own code: a full event table, a failure, a rebase
-        status = H.STATUS_OK if self.averaged else int(sim.counters[H.C_STATUS])
-        if status == H.STATUS_EVENTS_FULL and sim.t < t0 + self.dt:
+        status = AL.STATUS_OK if self.averaged else int(sim.counters[AL.C_STATUS])
+        if status == AL.STATUS_EVENTS_FULL and sim.t < t0 + self.dt:
             self.switches += sim._advance_to(t0 + self.dt, sim._empty_grid, sim._empty_out)
-        elif status not in (H.STATUS_OK, H.STATUS_EVENTS_FULL):
+        elif status not in (AL.STATUS_OK, AL.STATUS_EVENTS_FULL):
             raise SimulationError(sim._failure_text(status, self.switches))
         sim._rebase_angles()
         self.row[:] = sim.sample()

@@ -22,7 +22,8 @@ from ..physics.linkage import (
     rocker_angle,
 )
 from ..physics.output_exact import modal_form
-from . import hybrid as H
+from . import advance_layout as AL
+from . import hybrid
 from .output import COL, N_COLUMNS, write_sample
 from .steppers import DOPRI5, RK4
 
@@ -73,23 +74,23 @@ F_Y = 0                                   # state y
 F_P = F_Y + L.N_STATE                     # parameters P
 F_ACT = F_P + L.N_PARAMS                  # actuator profile ACT, (N_ACT_SEGMENTS, 4)
 F_S = F_ACT + 4 * L.N_ACT_SEGMENTS        # solver settings S
-F_H = F_S + H.N_SETTINGS                  # step-size proposals h_io
-F_LEDGER = F_H + H.N_PROPOSALS            # impact losses [J]
+F_H = F_S + AL.N_SETTINGS                  # step-size proposals h_io
+F_LEDGER = F_H + AL.N_PROPOSALS            # impact losses [J]
 F_DY = F_LEDGER + 1                       # a sample's right-hand side and auxiliaries
 F_AUX = F_DY + L.N_STATE
 F_ROW = F_AUX + L.N_AUX                   # the period's sample row
 F_SCRATCH = F_ROW + N_COLUMNS             # the working arrays of an advance call
-F_SIZE = F_SCRATCH + H.N_SCRATCH
+F_SIZE = F_SCRATCH + AL.N_SCRATCH
 I_MS = 0                                  # clutch mode, guard armed
 I_COUNTERS = 2
-I_SIZE = I_COUNTERS + H.N_COUNTERS
+I_SIZE = I_COUNTERS + AL.N_COUNTERS
 
 
 _FAILURES = {
-    H.STATUS_STEP_TOO_SMALL: 'the step size fell below the resolution of t (step-size floor)',
-    H.STATUS_NONFINITE: 'non-finite state',
-    H.STATUS_ZENO: 'clutch events without time advancing (Zeno)',
-    H.STATUS_NO_PROGRESS: 'no progress: the step budget of one call was spent',
+    AL.STATUS_STEP_TOO_SMALL: 'the step size fell below the resolution of t (step-size floor)',
+    AL.STATUS_NONFINITE: 'non-finite state',
+    AL.STATUS_ZENO: 'clutch events without time advancing (Zeno)',
+    AL.STATUS_NO_PROGRESS: 'no progress: the step budget of one call was spent',
 }
 _KIND_NAMES = {0: 'release', 1: 'engage', 2: 'engage_impact', 3: 'graze'}
 STEP_BUDGET = 20_000_000      # steps one advance call may take (≥ 20 s of wall time): watchdog
@@ -100,13 +101,13 @@ DP5_STABILITY = 3.3           # Dormand–Prince's stability interval, |h·λ| (
 
 
 def settings_vector(values, h_fixed):
-    S = np.zeros(H.N_SETTINGS)
-    S[H.S_METHOD] = DOPRI5 if values['solver.method'] == 'dopri5' else RK4
-    S[H.S_RTOL] = values['solver.rtol']
-    S[H.S_ATOL] = values['solver.atol']
-    S[H.S_H_FIXED] = h_fixed
-    S[H.S_MAX_STEP] = values['solver.max_step']
-    S[H.S_STEP_BUDGET] = STEP_BUDGET
+    S = np.zeros(AL.N_SETTINGS)
+    S[AL.S_METHOD] = DOPRI5 if values['solver.method'] == 'dopri5' else RK4
+    S[AL.S_RTOL] = values['solver.rtol']
+    S[AL.S_ATOL] = values['solver.atol']
+    S[AL.S_H_FIXED] = h_fixed
+    S[AL.S_MAX_STEP] = values['solver.max_step']
+    S[AL.S_STEP_BUDGET] = STEP_BUDGET
     return S
 
 
@@ -169,7 +170,7 @@ class Simulator:
 
     def __init__(self, values=None, events_capacity=4096):
         self.values = params_mod.validate(values or {})
-        self._events_buf = np.zeros((events_capacity, H.N_EVENT_COLUMNS))
+        self._events_buf = np.zeros((events_capacity, AL.N_EVENT_COLUMNS))
         self._floats = np.zeros(F_SIZE)
         self._ints = np.zeros(I_SIZE, dtype=np.int64)
         self._make_views()
@@ -360,12 +361,12 @@ class Simulator:
 
     # ------------------------------------------------------------------ integration
     def _call(self, t_end, grid, out):
-        t = H.advance(self.t, t_end, self.y, self.ms, self.P, self.ACT, self.LIN, self.S,
-                      self.h_io, grid, out, self._events_buf, self.counters, self.ledger,
-                      self._scratch)
+        t = hybrid.advance(self.t, t_end, self.y, self.ms, self.P, self.ACT, self.LIN, self.S,
+                           self.h_io, grid, out, self._events_buf, self.counters, self.ledger,
+                           self._scratch)
         self.t = t
         switches = self._take_events()
-        status = int(self.counters[H.C_STATUS])
+        status = int(self.counters[AL.C_STATUS])
         if status in _FAILURES:
             raise SimulationError(self._failure_text(status, switches))
         return switches, status
@@ -373,24 +374,24 @@ class Simulator:
     def _take_events(self):
         """The clutch events the compiled loop located since the last call, as ClutchSwitch
         objects; counts the switches, notes the first late event, empties the table."""
-        n_ev = int(self.counters[H.C_EVENTS])
+        n_ev = int(self.counters[AL.C_EVENTS])
         if n_ev == 0:
             return []
         rows = self._events_buf[:n_ev]
         # one tolist() rather than four numpy scalars per row (~10 000 switches a run)
-        switches = [ClutchSwitch(row[H.E_T], row[H.E_MODE] == L.ENGAGED,
-                                 _KIND_NAMES[int(row[H.E_KIND])], row[H.E_VALUE])
+        switches = [ClutchSwitch(row[AL.E_T], row[AL.E_MODE] == L.ENGAGED,
+                                 _KIND_NAMES[int(row[AL.E_KIND])], row[AL.E_VALUE])
                     for row in rows.tolist()]
-        self.switch_count += int(np.count_nonzero(rows[:, H.E_KIND] != KIND_GRAZE))
-        late = rows[rows[:, H.E_LATE] > 0.0]
+        self.switch_count += int(np.count_nonzero(rows[:, AL.E_KIND] != KIND_GRAZE))
+        late = rows[rows[:, AL.E_LATE] > 0.0]
         if len(late) and self.first_late_event is None:
-            self.first_late_event = float(late[0, H.E_T])
-        self.counters[H.C_EVENTS] = 0
+            self.first_late_event = float(late[0, AL.E_T])
+        self.counters[AL.C_EVENTS] = 0
         return switches
 
     def _failure_text(self, status, switches):
         text = f"integration failed at t = {self.t:.9g} s: {_FAILURES[status]}"
-        if status in (H.STATUS_STEP_TOO_SMALL, H.STATUS_NO_PROGRESS, H.STATUS_NONFINITE):
+        if status in (AL.STATUS_STEP_TOO_SMALL, AL.STATUS_NO_PROGRESS, AL.STATUS_NONFINITE):
             text += (" — the scene's values drive the model beyond what it can resolve; check "
                      "the largest of load.*, shaft.*, motor.*, inertia.* and initial.crank_speed "
                      "(cvt-sim params shows their ranges)")
@@ -404,16 +405,16 @@ class Simulator:
         while True:
             sw, status = self._call(t_end, grid, out)
             switches += sw
-            if status != H.STATUS_EVENTS_FULL or self.t >= t_end:
+            if status != AL.STATUS_EVENTS_FULL or self.t >= t_end:
                 return switches
 
     def advance(self, dt):
         """Advance by exactly dt [s]; returns the clutch switches located inside the step."""
         if not (dt > 0.0 and math.isfinite(dt)):
             raise ValueError(f"dt must be a positive finite time, got {dt!r}")
-        if self.S[H.S_METHOD] == RK4:
+        if self.S[AL.S_METHOD] == RK4:
             n = max(1, math.ceil(dt / self.h_fixed - 1e-9))
-            self.S[H.S_H_FIXED] = dt / n
+            self.S[AL.S_H_FIXED] = dt / n
         switches = self._advance_to(self.t + dt, self._empty_grid, self._empty_out)
         self._rebase_angles()
         return switches
@@ -451,16 +452,16 @@ class Simulator:
         kept = [first_row] if keep_samples else []
         if on_samples is not None:
             on_samples(first_row)
-        steps0 = int(self.counters[H.C_STEPS])
-        rej0 = int(self.counters[H.C_REJECTED])
-        rhs0 = int(self.counters[H.C_RHS])
-        late0 = int(self.counters[H.C_LATE])
+        steps0 = int(self.counters[AL.C_STEPS])
+        rej0 = int(self.counters[AL.C_REJECTED])
+        rhs0 = int(self.counters[AL.C_RHS])
+        late0 = int(self.counters[AL.C_LATE])
         switch0 = self.switch_count
         switches = []
         events = 0
         wall0 = time.perf_counter()
         chunk = min(max(sample_dt, min(1.0, duration / 50.0)), ROWS_PER_BLOCK * sample_dt)
-        if self.S[H.S_METHOD] == RK4:   # whole fixed steps per call: the grid is not cut short
+        if self.S[AL.S_METHOD] == RK4:   # whole fixed steps per call: the grid is not cut short
             chunk = math.ceil(chunk / self.h_fixed - 1e-9) * self.h_fixed
         k_next = 1   # index of the next sample
         t_next = t0
@@ -471,7 +472,7 @@ class Simulator:
             if k_end == n_last and len(grid):
                 grid[-1] = min(grid[-1], t_stop)   # the grid ends exactly at T
             out = np.empty((len(grid), N_COLUMNS))
-            self.counters[H.C_NEXT_SAMPLE] = 0
+            self.counters[AL.C_NEXT_SAMPLE] = 0
             # rebasing between chunks shifts angles: the rows written in this chunk are
             # corrected by the offsets in force while they were written
             off1, off4 = self.turns_phi1, self.turns_phi4
@@ -482,7 +483,7 @@ class Simulator:
                     switches += located
                 if on_switches is not None:
                     on_switches(located)
-            block = out[:int(self.counters[H.C_NEXT_SAMPLE])]
+            block = out[:int(self.counters[AL.C_NEXT_SAMPLE])]
             block[:, COL['phi1']] += off1
             block[:, COL['phi3']] += off4
             block[:, COL['phi4']] += off4
@@ -502,21 +503,21 @@ class Simulator:
                 f"the energy balance is not finite at t = {self.t:.9g} s (stored energy "
                 f"{energy['stored']!r} J, motor work {energy['work_motor']!r} J): the scene's "
                 "values overflow the model; check inertia.*, initial.crank_speed and the torques")
-        late = int(self.counters[H.C_LATE]) - late0
+        late = int(self.counters[AL.C_LATE]) - late0
         warnings = list(self.warnings)
         if late:
             warnings.append(
                 f"{late} clutch switch(es) found only after the step that crossed them (first at "
                 f"t = {self.first_late_event:.9g} s): an event may have been missed there; a "
                 "tighter solver.rtol or a smaller solver.max_step locates it")
-        diagnostics = {'rhs_evaluations': int(self.counters[H.C_RHS]) - rhs0,
+        diagnostics = {'rhs_evaluations': int(self.counters[AL.C_RHS]) - rhs0,
                        'possible_missed_events': late,
                        'first_possible_missed_event_s': self.first_late_event if late else None,
                        'warnings': warnings}
         samples = np.concatenate(kept) if keep_samples else np.empty((0, N_COLUMNS))
         switched = self.switch_count - switch0
-        return RunResult(samples, switches, wall, int(self.counters[H.C_STEPS]) - steps0,
-                         int(self.counters[H.C_REJECTED]) - rej0, energy, diagnostics,
+        return RunResult(samples, switches, wall, int(self.counters[AL.C_STEPS]) - steps0,
+                         int(self.counters[AL.C_REJECTED]) - rej0, energy, diagnostics,
                          switched, events - switched)
 
     def _rebase_angles(self):

@@ -29,7 +29,7 @@ RK4 = 1
 # what a step integrates: the whole hybrid state, or only the disengaged output subsystem
 FULL = 0
 OUTPUT = 1
-INPUT = 2  # the whole state, output subsystem frozen (it is integrated apart, see hybrid.py)
+INPUT = 2  # the whole state, output subsystem frozen (it is integrated apart, see slip_watch.py)
 MASSLESS = 3  # the whole state, a massless damped node's twist (and its damping work) frozen:
 #               open, θ' = −(c/k)·θ is solved exactly apart from the step (hybrid.py)
 # components under error control

@@ -1,0 +1,137 @@
+"""An accepted step read through its dense output: the guard at any point of it, the whole state
+inside a split step (the input's dense output with the open output's own solution), a guard's
+root located on the true guard, and the caller's samples written without shortening the step.
+
+Pieces of the hybrid loop (hybrid.py) that the open output's slip watch (slip_watch.py) uses too.
+"""
+import math
+
+from ..physics.clutch import clutch_guard
+from ..physics.compiled import inline_kernel, kernel
+from ..physics.dynamics import project, rhs, rocker_speed
+from ..physics.layout import (
+    DISENGAGED,
+    N_OUTPUT,
+    OMEGA3,
+    OUTPUT_STATES,
+    P_C,
+    P_J3,
+    P_KD,
+    P_RIGID,
+    TWIST,
+    W_DAMPING,
+)
+from ..physics.output_exact import output_at
+from .advance_layout import C_NEXT_SAMPLE, C_RHS
+from .output import write_sample
+from .steppers import DOPRI5, dense_state, dopri5_step, rk4_step
+from .witness import illinois_point, illinois_update
+
+
+@kernel
+def take_step(method, kind, t, y, h, mode, P, ACT, K, y_new, ytmp, aux, rtol, atol, err_idx,
+              counters):
+    if method == DOPRI5:
+        counters[C_RHS] += 6
+        return dopri5_step(kind, t, y, h, mode, P, ACT, K, y_new, ytmp, aux, rtol, atol, err_idx)
+    counters[C_RHS] += 4
+    return rk4_step(t, y, h, mode, P, ACT, K, y_new, ytmp, aux)
+
+
+@inline_kernel
+def guard_at(method, theta, t, h, y0, y1, K, mode, P, ACT, ytmp, dytmp, auxtmp, counters):
+    """The guard at t + θ·h from the dense output and one right-hand side (the twist rule)."""
+    dense_state(method, theta, h, y0, y1, K, ytmp)
+    rhs(t + theta * h, ytmp, mode, P, ACT, dytmp, auxtmp)
+    counters[C_RHS] += 1
+    g, _ = clutch_guard(mode, ytmp, dytmp, auxtmp, P)
+    return g
+
+
+@inline_kernel
+def output_state(exact, sigma, t, tau, hs, z0, clock, P, ztmp, with_work):
+    """Output subsystem at tau + σ·hs: the exact solution from the step start t (exact), or the
+    dense output of the sub-step [tau, tau+hs] that started at z0."""
+    Ko, zs, LIN, W, _ = clock
+    if exact:
+        output_at(tau + sigma * hs - t, zs, P, LIN, W, ztmp, with_work)
+    else:
+        dense_state(DOPRI5, sigma, hs, z0, z0, Ko, ztmp)
+
+
+@inline_kernel
+def split_state(exact, sigma, t, h, y0, K, tau, hs, z0, clock, P, ycomb, ztmp, with_work):
+    """The full state at tau + σ·hs inside a split step: the input subsystem from the main
+    step's dense output, the output subsystem from output_state."""
+    tt = tau + sigma * hs
+    dense_state(DOPRI5, (tt - t) / h, h, y0, y0, K, ycomb)
+    output_state(exact, sigma, t, tau, hs, z0, clock, P, ztmp, with_work)
+    for i in range(N_OUTPUT):
+        ycomb[OUTPUT_STATES[i]] = ztmp[i]
+    return tt
+
+
+@inline_kernel
+def true_split_slip(exact, sigma, t, h, y0, K, tau, hs, z0, clock, P, ACT, ycomb, ztmp):
+    """The slip at tau + σ·hs with the rocker speed from the closed-form linkage at the dense
+    crank state (what the reset map sees), not from the rocker speed's own dense polynomial."""
+    tt = split_state(exact, sigma, t, h, y0, K, tau, hs, z0, clock, P, ycomb, ztmp, False)
+    return ycomb[OMEGA3] - rocker_speed(tt, ycomb, P, ACT)
+
+
+@kernel
+def locate_root(split, exact, method, t, h, y0, y1, K, tau, hs, z0, clock, mode, P, ACT, Cv, lo, hi,
+                glo, ghi, tol_theta, ytmp, dytmp, auxtmp, ztmp, counters):
+    """Illinois' regula falsi on the true guard g(θ), g(lo) > 0 > g(hi); θ just past the root.
+
+    θ runs over the step [t, t+h] (split = False: the guard through the right-hand side) or
+    over the output sub-step [tau, tau+hs] (the slip, with the linkage's rocker speed).
+    """
+    side = 0
+    for it in range(200):
+        if hi - lo <= tol_theta:
+            break
+        m = illinois_point(it, lo, hi, glo, ghi)
+        if split:
+            gm = true_split_slip(exact, m, t, h, y0, K, tau, hs, z0, clock, P, ACT, ytmp, ztmp)
+        else:
+            gm = guard_at(method, m, t, h, y0, y1, K, mode, P, ACT, ytmp, dytmp, auxtmp, counters)
+        lo, hi, glo, ghi, side = illinois_update(m, gm, lo, hi, glo, ghi, side)
+    return hi
+
+
+@inline_kernel
+def twist_relaxes(method, mode, P):
+    """An open massless damped node: its twist is solved exactly, not stepped (stiff c/k)."""
+    return (method == DOPRI5 and mode == DISENGAGED and P[P_J3] == 0.0 and P[P_KD] > 0.0
+            and P[P_RIGID] == 0.0)
+
+
+@kernel
+def emit_samples(split, exact, method, t, h, y0, y1, K, tau, hs, z0, clock, mode, P, ACT, grid, out,
+                 counters, t_limit, ytmp, ztmp, dytmp, auxtmp):
+    """Write every grid sample in (…, t_limit] from the dense output of the step [t, t+h], or,
+    inside a split step (split), of its input part and of the output sub-step [tau, tau+hs]."""
+    i = counters[C_NEXT_SAMPLE]
+    while i < grid.shape[0] and grid[i] <= t_limit:
+        if split:
+            split_state(exact, (grid[i] - tau) / hs if hs > 0.0 else 1.0, t, h, y0, K, tau, hs, z0,
+                        clock, P, ytmp, ztmp, True)
+        else:
+            dense_state(method, (grid[i] - t) / h if h > 0.0 else 1.0, h, y0, y1, K, ytmp)
+            if twist_relaxes(method, mode, P):
+                theta = y0[TWIST] * math.exp(-P[P_C] / P[P_KD] * (grid[i] - t))
+                ytmp[W_DAMPING] += 0.5 * P[P_C] * (y0[TWIST] ** 2 - theta * theta)
+                ytmp[TWIST] = theta
+        project(grid[i], ytmp, mode, P, ACT)
+        rhs(grid[i], ytmp, mode, P, ACT, dytmp, auxtmp)
+        write_sample(out[i], grid[i], ytmp, mode, auxtmp)
+        i += 1
+    counters[C_NEXT_SAMPLE] = i
+
+
+@inline_kernel
+def sample_due(grid, counters, t_limit):
+    """Is a grid sample due in (…, t_limit]? (Checked before the call: most steps have none.)"""
+    i = counters[C_NEXT_SAMPLE]
+    return i < grid.shape[0] and grid[i] <= t_limit
