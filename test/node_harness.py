@@ -8,6 +8,7 @@ Run as a script, ``python test/node_harness.py flood TOPIC RATE SECONDS VALUE...
 std_msgs/Float64 commands at RATE per second from its own process (a flood must not share the
 probe's interpreter lock).
 """
+import bisect
 import os
 import signal
 import subprocess
@@ -19,6 +20,7 @@ import time
 import rclpy
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters, SetParameters
+from rclpy.callback_groups import CallbackGroup
 from rclpy.context import Context
 from rclpy.duration import Duration
 from rclpy.exceptions import InvalidHandle
@@ -26,8 +28,10 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.serialization import deserialize_message
 
 from cvt_ros.device import domains
+from cvt_ros.device.subscription_wait import SubscriptionWait
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
@@ -80,6 +84,16 @@ def wait_for(predicate, timeout, interval=0.005):
         if value or time.monotonic() > end:
             return value
         time.sleep(interval)
+
+
+def reset_sample(joints, requested_ns, timeout=30.0):
+    """The index in ``joints`` of the t = 0 sample a ~/reset requested at system time
+    ``requested_ns`` published: the first one sent after the request. (Not the first t = 0 after
+    the request's index: a probe behind on a busy machine may still hold an earlier reset's.)"""
+    index = wait_for(lambda: (i := joints.first_sent_since(
+        requested_ns, lambda m: stamp_ns(m) == 0)) is not None and i + 1, timeout)
+    assert index, 'no t = 0 sample after ~/reset'
+    return index - 1
 
 
 def stamp_s(msg):
@@ -136,30 +150,94 @@ class NodeProcess:
 
 
 class Collector:
-    """Messages of one subscription as (monotonic receive time, message)."""
+    """Messages of one subscription as (monotonic receive time, message), with the time each was
+    published (the publisher's source timestamp: system clock, ns). Taken as CDR bytes by a
+    thread of its own (``Probe.subscribe``) and turned into messages when read."""
 
-    def __init__(self):
-        self.items = []
+    def __init__(self, msg_type):
+        self.items = []     # (receive time, message, or its CDR bytes until read)
+        self.sent_ns = []
         self.lock = threading.Lock()
+        self._msg_type = msg_type
 
-    def __call__(self, msg):
+    def __call__(self, msg, info):
         with self.lock:
             self.items.append((time.monotonic(), msg))
+            self.sent_ns.append(info['source_timestamp'])
 
     def __len__(self):
         return len(self.items)
 
+    def _message(self, i):
+        """Item i's message (the caller holds the lock)."""
+        received, msg = self.items[i]
+        if isinstance(msg, bytes):
+            msg = deserialize_message(msg, self._msg_type)
+            self.items[i] = (received, msg)
+        return msg
+
+    def _indices(self, since):
+        return range(*slice(since, None).indices(len(self.items)))
+
     def messages(self, since=0):
         with self.lock:
-            return [m for _, m in self.items[since:]]
+            return [self._message(i) for i in self._indices(since)]
 
     def timed(self, since=0):
         with self.lock:
-            return list(self.items[since:])
+            return [(self.items[i][0], self._message(i)) for i in self._indices(since)]
 
     def last(self):
         with self.lock:
-            return self.items[-1][1] if self.items else None
+            return self._message(len(self.items) - 1) if self.items else None
+
+    def first_sent_since(self, wall_ns, predicate):
+        """Index of the first message published at or after system time ``wall_ns``
+        (``time.time_ns()``) for which ``predicate(msg)`` holds, or None. A probe behind the
+        node on a busy machine may still be taking messages published long before."""
+        with self.lock:
+            # one publisher's messages arrive in the order sent: their timestamps are sorted
+            for i in range(bisect.bisect_left(self.sent_ns, wall_ns), len(self.items)):
+                if predicate(self._message(i)):
+                    return i
+        return None
+
+
+class _TakenApart(CallbackGroup):
+    """The probe's subscriptions: never run by its executor; each is taken by a thread of its
+    own (``_Taker``)."""
+
+    def can_execute(self, entity):
+        return False
+
+    def beginning_execution(self, entity):
+        return True
+
+    def ending_execution(self, entity):
+        pass
+
+
+class _Taker:
+    """One subscription's messages taken as CDR bytes by a thread of its own, in batches from one
+    rcl wait set (cvt_ros.device.subscription_wait). rclpy's executor costs ~100 µs a message in
+    Python: on a busy 2-core machine a probe served by it took 350–600 JointState samples per
+    second of a 1 kHz node, fell seconds behind and then lost samples in DDS (the node's writer
+    keeps 10); taken apart it keeps up."""
+
+    def __init__(self, context, subscription):
+        self._stop = threading.Event()
+        self._wait = SubscriptionWait(context, [subscription])
+        self._thread = threading.Thread(target=self._take, daemon=True)
+        self._thread.start()
+
+    def _take(self):
+        while not self._stop.is_set():
+            self._wait.wait(0.05)
+
+    def stop(self):
+        self._stop.set()
+        self._wait.wake()
+        self._thread.join(5.0)
 
 
 class Probe:
@@ -171,6 +249,8 @@ class Probe:
         self.node = Node(name, context=self.context, parameter_overrides=parameter_overrides)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
+        self._taken_apart = _TakenApart()
+        self._takers = []
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
 
@@ -189,17 +269,24 @@ class Probe:
                 raise
 
     def close(self):
+        for taker in self._takers:
+            taker.stop()
         self.executor.shutdown(timeout_sec=1.0)
         self.node.destroy_node()
         rclpy.try_shutdown(context=self.context)
         self._thread.join(2.0)
 
     def subscribe(self, msg_type, topic, qos=RELIABLE):
-        collector = Collector()
-        collector.subscription = self.node.create_subscription(msg_type, topic, collector, qos)
+        collector = Collector(msg_type)
+        collector.subscription = self.node.create_subscription(
+            msg_type, topic, collector, qos, callback_group=self._taken_apart, raw=True)
+        collector.taker = _Taker(self.context, collector.subscription)
+        self._takers.append(collector.taker)
         return collector
 
     def unsubscribe(self, collector):
+        collector.taker.stop()
+        self._takers.remove(collector.taker)
         self.node.destroy_subscription(collector.subscription)
 
     def publisher(self, msg_type, topic, qos=RELIABLE):
