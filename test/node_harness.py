@@ -20,7 +20,6 @@ import time
 import rclpy
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters, SetParameters
-from rclpy.callback_groups import CallbackGroup
 from rclpy.context import Context
 from rclpy.duration import Duration
 from rclpy.exceptions import InvalidHandle
@@ -31,7 +30,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rclpy.serialization import deserialize_message
 
 from cvt_ros.device import domains
-from cvt_ros.device.subscription_wait import SubscriptionWait
+from cvt_ros.device.subscription_wait import SubscriptionWait, WaitedApart
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 REPO = os.path.dirname(HERE)
@@ -203,20 +202,6 @@ class Collector:
         return None
 
 
-class _TakenApart(CallbackGroup):
-    """The probe's subscriptions: never run by its executor; each is taken by a thread of its
-    own (``_Taker``)."""
-
-    def can_execute(self, entity):
-        return False
-
-    def beginning_execution(self, entity):
-        return True
-
-    def ending_execution(self, entity):
-        pass
-
-
 class _Taker:
     """One subscription's messages taken as CDR bytes by a thread of its own, in batches from one
     rcl wait set (cvt_ros.device.subscription_wait). rclpy's executor costs ~100 µs a message in
@@ -249,7 +234,7 @@ class Probe:
         self.node = Node(name, context=self.context, parameter_overrides=parameter_overrides)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
-        self._taken_apart = _TakenApart()
+        self._waited_apart = WaitedApart()
         self._takers = []
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._thread.start()
@@ -279,7 +264,7 @@ class Probe:
     def subscribe(self, msg_type, topic, qos=RELIABLE):
         collector = Collector(msg_type)
         collector.subscription = self.node.create_subscription(
-            msg_type, topic, collector, qos, callback_group=self._taken_apart, raw=True)
+            msg_type, topic, collector, qos, callback_group=self._waited_apart, raw=True)
         collector.taker = _Taker(self.context, collector.subscription)
         self._takers.append(collector.taker)
         return collector

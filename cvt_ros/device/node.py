@@ -20,7 +20,6 @@ import threading
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import SetParametersResult
-from rclpy.callback_groups import CallbackGroup
 from rclpy.clock import Clock, ClockType
 from rclpy.exceptions import InvalidHandle, ParameterNotDeclaredException
 from rclpy.node import Node
@@ -48,7 +47,7 @@ from .descriptors import (
 )
 from .diagnostics import Reporter
 from .loop import REALTIME_POLICY, RunLoop
-from .subscription_wait import TAKE_LIMIT, RCLError, SubscriptionWait
+from .subscription_wait import TAKE_LIMIT, RCLError, SubscriptionWait, WaitedApart
 
 CRANK = 'linkage.crank_length'
 GEOMETRY = {'linkage.rocker_length', 'linkage.coupler_length', 'linkage.pivot_distance'}
@@ -61,22 +60,13 @@ _FIELDS = ([COL[c] for c in interface.POSITION_COLUMNS] + [_A]
 _RATE_SLOT, _FORCE_SLOT = 9, 14
 
 
-class _CommandGroup(CallbackGroup):
+class _CommandGroup(WaitedApart):
     """The command subscriptions' callback group: the executor leaves them alone, the loop
     thread takes their messages itself (``CvtSimNode.wait_commands``: its own rcl wait set).
     While the simulation runs free it polls them at the start of each period (a flood costs a
     few µs per message, no fight for the interpreter lock with a busy executor thread); while it
     is held (lockstep, paused) it blocks on them, so a lockstep command is one wake-up of the
     loop thread, which applies it, advances and publishes — no executor pass, no hand-over."""
-
-    def can_execute(self, entity):
-        return False
-
-    def beginning_execution(self, entity):
-        return True
-
-    def ending_execution(self, entity):
-        pass
 
 
 class CvtSimNode(Node):

@@ -11,12 +11,27 @@ same time (the node puts its command subscriptions in a callback group the execu
 """
 import contextlib
 
+from rclpy.callback_groups import CallbackGroup
 from rclpy.exceptions import InvalidHandle
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.subscription import Subscription
 
 RCLError = _rclpy.RCLError
 TAKE_LIMIT = 1000   # messages taken per subscription and wait (a flood cannot starve the rest)
+
+
+class WaitedApart(CallbackGroup):
+    """The callback group of subscriptions a ``SubscriptionWait`` takes: an executor never runs
+    them (its thread and the wait would take from the same reader)."""
+
+    def can_execute(self, entity):
+        return False
+
+    def beginning_execution(self, entity):
+        return True
+
+    def ending_execution(self, entity):
+        pass
 
 
 class SubscriptionWait:
