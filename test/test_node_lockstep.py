@@ -94,7 +94,7 @@ def reset(device):
     response = device.probe.call(Trigger, f'{NODE}/reset')
     assert response.success, response.message
     assert response.message.startswith("reset to the scene's initial state: t=0.000000000 s")
-    return reset_sample(device.joints, requested_ns)
+    return reset_sample(device.joints, requested_ns, timeout=10.0)
 
 
 def set_params(device, **values):
