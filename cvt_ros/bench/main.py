@@ -3,7 +3,8 @@
 ``cvt-sim bench [OPTIONS]`` runs the sections (work-precision and the defaults, hard cases, the
 RK4 stability limit, the long run, the known-defect checks); ``cvt-sim bench node ARGS`` the ROS
 node's benchmark (cvt_ros.bench.node); ``cvt-sim bench fidelity ARGS`` the fidelity table;
-``cvt-sim bench sweep ARGS`` the Dask campaign benchmark (cvt_ros.bench.sweep).
+``cvt-sim bench sweep ARGS`` the Dask campaign benchmark (cvt_ros.bench.sweep); ``cvt-sim bench
+profile ARGS`` where the core's time goes at steady state (Linux perf, cvt_ros.bench.profile).
 """
 import argparse
 import importlib
@@ -50,7 +51,7 @@ from .work_precision import (
 )
 
 SECTIONS = ('work', 'steady', 'scaling', 'events', 'hard', 'stability', 'long', 'defects')
-SUBCOMMANDS = ('node', 'fidelity', 'sweep')   # modules of this package with their own main(argv)
+SUBCOMMANDS = ('node', 'fidelity', 'sweep', 'profile')   # modules with their own main(argv)
 
 
 def page(cfg, env, parts, plots, command, wall_total):
@@ -165,7 +166,9 @@ def parse_args(argv):
                'counts at every rtol), hard (hard cases), stability (RK4 step limit), long '
                '(1 h run), defects (known-defect checks).\n'
                'other benchmarks: cvt-sim bench node --help (the ROS node), '
-               'cvt-sim bench fidelity --help (each fidelity against the full model)')
+               'cvt-sim bench fidelity --help (each fidelity against the full model), '
+               'cvt-sim bench sweep --help (Dask campaigns), '
+               'cvt-sim bench profile --help (a perf profile of the steady-state runs)')
     ap.add_argument('--quick', action='store_true', help='CI-sized: short spans, fewer points')
     ap.add_argument('--out', default='BENCHMARKS.md', help='markdown report (default %(default)s)')
     ap.add_argument('--plots', default='docs/plots', help='PNG directory (default %(default)s)')

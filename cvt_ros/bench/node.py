@@ -37,6 +37,7 @@ import time
 from pathlib import Path
 
 from ..device import domains
+from .report import replace_section
 
 SECTION = '## ROS node'
 PI_TARGET, PI_KP, PI_KI = 60.0, 2e-4, 2e-3    # rad/s, m per rad/s, m per rad (docs/lockstep.md)
@@ -541,19 +542,6 @@ def run(options, out):
     out(f"Load average at the end: {_load()}.\n")
 
 
-def write_section(path, text):
-    """Replace the section SECTION of the markdown file ``path`` (append it if absent)."""
-    from .report import _blocks
-    path = Path(path)
-    blocks = _blocks(path.read_text()) if path.exists() else []
-    body = f"{SECTION}\n\n{text.strip()}\n\n"
-    if any(head == SECTION for head, _ in blocks):
-        parts = [body if head == SECTION else b for head, b in blocks]
-    else:
-        parts = [b for _, b in blocks] + ['\n' + body]
-    path.write_text(''.join(parts))
-
-
 def main(argv=None):
     parser = argparse.ArgumentParser(prog='cvt-sim bench node',
                                      description=__doc__.split('\n\n')[0])
@@ -584,7 +572,7 @@ def main(argv=None):
         lines.append(text)
     run(options, out)
     if options.write:
-        write_section(options.write, '\n'.join(lines))
+        replace_section(options.write, SECTION, f"{SECTION}\n\n" + '\n'.join(lines))
         print(f"written to {options.write} (section {SECTION[3:]!r})", file=sys.stderr)
     return 0
 

@@ -101,3 +101,20 @@ def write_report(path, text):
         out = out.rstrip() + '\n\n' + ''.join(kept).lstrip('\n')
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(out if out.endswith('\n') else out + '\n')
+
+
+def replace_section(path, title, text):
+    """Put ``text`` (a section, its ``title`` heading first) into the markdown file ``path`` in
+    place of the section of that title, or at its end; every other section is kept as it is."""
+    path = Path(path)
+    blocks = _blocks(path.read_text()) if path.exists() else []
+    out, done = [], False
+    for head, body in blocks:
+        if head == title:
+            out.append(text.rstrip() + '\n\n')
+            done = True
+        else:
+            out.append(body)
+    if not done:
+        out.append(('\n' if out and not out[-1].endswith('\n\n') else '') + text)
+    path.write_text(''.join(out).rstrip() + '\n')

@@ -20,7 +20,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from .report import ROOT, _blocks, environment, fmt, table
+from .report import ROOT, environment, fmt, replace_section, table
 
 TITLE = '## Sweeps (Dask campaigns)'
 
@@ -114,22 +114,6 @@ def section(cfg, env, one_a, two, one_b, rss0, command, load_end):
     return '\n'.join(L)
 
 
-def write_section(path, text):
-    """Replace (or append) this section of ``path``, keeping every other section as it is."""
-    path = Path(path)
-    blocks = _blocks(path.read_text()) if path.exists() else []
-    out, done = [], False
-    for head, body in blocks:
-        if head == TITLE:
-            out.append(text.rstrip() + '\n\n')
-            done = True
-        else:
-            out.append(body)
-    if not done:
-        out.append(('\n' if out and not out[-1].endswith('\n\n') else '') + text)
-    path.write_text(''.join(out).rstrip() + '\n')
-
-
 def main(argv=None):
     ap = argparse.ArgumentParser(prog='cvt-sim bench sweep',
                                  description=__doc__.split('\n\n')[0],
@@ -160,7 +144,7 @@ def main(argv=None):
     text = section(cfg, env, one_a, two, one_b, rss0, command, os.getloadavg()[0])
     print(text)
     if cfg.out != '-':
-        write_section(cfg.out, text)
+        replace_section(cfg.out, TITLE, text)
         log(f"wrote the section to {cfg.out}")
     return 0
 
