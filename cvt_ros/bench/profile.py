@@ -40,9 +40,10 @@ class ProfileError(RuntimeError):
 # ------------------------------------------------------------------ the child: run and map
 def perf_map_entries():
     """(address, size, symbol) of every function numba compiled in this process (not of kernels
-    loaded from the disk cache: those carry no symbols); size = gap to the next function."""
+    loaded from the disk cache: those carry no symbols), one per address; size = gap to the next
+    function."""
     from numba.core.registry import CPUDispatcher
-    entries = []
+    entries = {}
     seen = set()
     for obj in gc.get_objects():
         if not isinstance(obj, CPUDispatcher):
@@ -58,12 +59,15 @@ def perf_map_entries():
             except Exception:   # a library loaded from the cache has no module
                 continue
             for name in functions:
-                address = library.get_pointer_to_function(name)
+                try:
+                    address = library.get_pointer_to_function(name)
+                except Exception:   # a name the JIT did not keep
+                    continue
                 if address:
-                    entries.append((address, name))
-    entries.sort()
-    return [(a, (entries[i + 1][0] - a if i + 1 < len(entries) else 4096), n)
-            for i, (a, n) in enumerate(entries)]
+                    entries[address] = name   # a callee linked into several libraries: once
+    ordered = sorted(entries.items())
+    return [(a, (ordered[i + 1][0] - a if i + 1 < len(ordered) else 4096), n)
+            for i, (a, n) in enumerate(ordered)]
 
 
 def write_perf_map(entries, pid=None):
