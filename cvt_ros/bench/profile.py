@@ -23,7 +23,7 @@ import sys
 import tempfile
 import time
 
-from .report import fmt, replace_section, table
+from .report import environment, fmt, replace_section, table
 
 TITLE = '## Where the time goes at steady state (profile)'
 SCENES = ('paper', 'conveyor', 'stiff_shaft')
@@ -192,9 +192,10 @@ def record(scenes, span, log):
 
 
 def section(results, command, load):
+    env = environment()
     L = [TITLE, '']
-    L += [f"Made by `{command}` (revision {_revision()}, "
-          f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; load average {load}). "
+    L += [f"Made by `{command}` (revision {env['revision']}, {env['date']}; {env['cpu']}, "
+          f"{env['cores']} cores, numba {env['versions']['numba']}; load average {load}). "
           "Linux perf samples the steady-state window of each scene (as the section Speed at "
           "steady state runs it: 2 s from rest, then the span with 0.1 s samples streamed) at "
           f"{FREQUENCY} Hz; a kernel's share includes what it inlines (linkage, torques, dense "
@@ -218,14 +219,6 @@ def section(results, command, load):
         L += table(['where', 'share of the window', 'µs per simulated second'], rows)
         L += ['']
     return '\n'.join(L)
-
-
-def _revision():
-    try:
-        return subprocess.run(['git', 'rev-parse', '--short', 'HEAD'], capture_output=True,
-                              text=True, cwd=os.path.dirname(__file__)).stdout.strip() or '?'
-    except OSError:
-        return '?'
 
 
 def main(argv=None):

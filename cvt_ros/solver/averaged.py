@@ -281,7 +281,7 @@ class AveragedSimulator(Simulator):
     def _settle_clutch(self):
         self.ms[:] = 0  # no clutch automaton: the mean drive torque decides
 
-    def _call(self, t_end, grid, out):
+    def _call(self, t_end, grid, out, objects=True):
         m = self.ratio_map
         self.t = averaged_advance(self.t, t_end, self.y, self.P, self.ACT, m.a, m.w1, m.m,
                                   m.ratio, self.j1e, grid, out, self.counters)

@@ -220,6 +220,7 @@ class Simulator:
         self.turns_phi1 = 0.0       # angle folded out of φ1 and φ4 [rad]
         self.turns_phi4 = 0.0
         self.switch_count = 0
+        self.event_count = 0        # switches and grazes
         self.first_late_event = None
         self._configure_steps()
         self._set_rocker_from_linkage()
@@ -360,20 +361,22 @@ class Simulator:
             self.command_crank_length(target)
 
     # ------------------------------------------------------------------ integration
-    def _call(self, t_end, grid, out):
+    def _call(self, t_end, grid, out, objects=True):
         t = hybrid.advance(self.t, t_end, self.y, self.ms, self.P, self.ACT, self.LIN, self.S,
                            self.h_io, grid, out, self._events_buf, self.counters, self.ledger,
                            self._scratch)
         self.t = t
-        switches = self._take_events()
+        switches = self._take_events(objects)
         status = int(self.counters[AL.C_STATUS])
         if status in _FAILURES:
             raise SimulationError(self._failure_text(status, switches))
         return switches, status
 
-    def _take_events(self):
+    def _take_events(self, objects=True):
         """The clutch events the compiled loop located since the last call, as ClutchSwitch
-        objects; counts the switches, notes the first late event, empties the table."""
+        objects (objects False: only the last three, for a failure's message: a streamed run
+        keeps none, and one object costs ~1 µs, 250 of them per simulated second on the stiff
+        shaft); counts the switches and events, notes the first late event, empties the table."""
         n_ev = int(self.counters[AL.C_EVENTS])
         if n_ev == 0:
             return []
@@ -381,8 +384,9 @@ class Simulator:
         # one tolist() rather than four numpy scalars per row (~10 000 switches a run)
         switches = [ClutchSwitch(row[AL.E_T], row[AL.E_MODE] == L.ENGAGED,
                                  _KIND_NAMES[int(row[AL.E_KIND])], row[AL.E_VALUE])
-                    for row in rows.tolist()]
+                    for row in (rows if objects else rows[-3:]).tolist()]
         self.switch_count += int(np.count_nonzero(rows[:, AL.E_KIND] != KIND_GRAZE))
+        self.event_count += n_ev
         late = rows[rows[:, AL.E_LATE] > 0.0]
         if len(late) and self.first_late_event is None:
             self.first_late_event = float(late[0, AL.E_T])
@@ -399,11 +403,11 @@ class Simulator:
                 text += f"; {self.warnings[0]}"
         return text + f" (last clutch events: {switches[-3:]})"
 
-    def _advance_to(self, t_end, grid, out):
+    def _advance_to(self, t_end, grid, out, objects=True):
         """Integrate to t_end, draining the event table as often as it fills."""
         switches = []
         while True:
-            sw, status = self._call(t_end, grid, out)
+            sw, status = self._call(t_end, grid, out, objects)
             switches += sw
             if status != AL.STATUS_EVENTS_FULL or self.t >= t_end:
                 return switches
@@ -457,8 +461,9 @@ class Simulator:
         rhs0 = int(self.counters[AL.C_RHS])
         late0 = int(self.counters[AL.C_LATE])
         switch0 = self.switch_count
+        events0 = self.event_count
         switches = []
-        events = 0
+        objects = keep_samples or on_switches is not None
         wall0 = time.perf_counter()
         chunk = min(max(sample_dt, min(1.0, duration / 50.0)), ROWS_PER_BLOCK * sample_dt)
         if self.S[AL.S_METHOD] == RK4:   # whole fixed steps per call: the grid is not cut short
@@ -476,9 +481,8 @@ class Simulator:
             # rebasing between chunks shifts angles: the rows written in this chunk are
             # corrected by the offsets in force while they were written
             off1, off4 = self.turns_phi1, self.turns_phi4
-            located = self._advance_to(t_next, grid, out)
-            if located:
-                events += len(located)
+            located = self._advance_to(t_next, grid, out, objects)
+            if located and objects:
                 if keep_samples:
                     switches += located
                 if on_switches is not None:
@@ -518,7 +522,7 @@ class Simulator:
         switched = self.switch_count - switch0
         return RunResult(samples, switches, wall, int(self.counters[AL.C_STEPS]) - steps0,
                          int(self.counters[AL.C_REJECTED]) - rej0, energy, diagnostics,
-                         switched, events - switched)
+                         switched, self.event_count - events0 - switched)
 
     def _rebase_angles(self):
         """Fold whole turns out of φ1 and φ4 so their sines keep full precision for hours."""
