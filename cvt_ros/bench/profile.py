@@ -24,12 +24,11 @@ import tempfile
 import time
 
 from .report import environment, fmt, replace_section, table
+from .steady_state import SAMPLE_DT, SCENES, WARM  # the window as the steady-state benchmark's
 
 TITLE = '## Where the time goes at steady state (profile)'
-SCENES = ('paper', 'conveyor', 'stiff_shaft')
 SPAN = 2000.0          # [s] simulated per scene: 2–10 s of wall time, ~10⁴ samples at FREQUENCY
 FREQUENCY = 4999       # [Hz] perf's sampling rate
-WARM = 2.0             # [s] from rest before the window, as bench/steady_state.py
 _REPORT_LINE = re.compile(r'^\s*([\d.]+)%\s+(\d+)\s+(.+?)\s+\[([.kg])\]\s+(.+?)\s*$')
 
 
@@ -87,7 +86,7 @@ def child_main(scenes, span):
     for name in scenes:
         sim = Simulator(load_scene(name))
         sim.advance(WARM)
-        sim.run(0.5, 0.1, keep_samples=False)   # every kernel of the window compiled
+        sim.run(0.5, SAMPLE_DT, keep_samples=False)   # every kernel of the window compiled
         sims[name] = sim
     path = write_perf_map(perf_map_entries())
     gc.collect()
@@ -95,7 +94,7 @@ def child_main(scenes, span):
     for name, sim in sims.items():
         c0 = sim.counters.copy()
         t0 = time.clock_gettime(time.CLOCK_MONOTONIC)
-        sim.run(span, 0.1, keep_samples=False)
+        sim.run(span, SAMPLE_DT, keep_samples=False)
         t1 = time.clock_gettime(time.CLOCK_MONOTONIC)
         c = sim.counters - c0
         print(json.dumps({'scene': name, 'start': t0, 'stop': t1, 'span': span,
@@ -116,7 +115,7 @@ def kernel_name(symbol):
     parts, i = [], 3
     while i < len(symbol) and symbol[i].isdigit():
         j = i
-        while symbol[j].isdigit():
+        while j < len(symbol) and symbol[j].isdigit():
             j += 1
         n = int(symbol[i:j])
         parts.append(symbol[j:j + n])
@@ -183,11 +182,10 @@ def record(scenes, span, log):
             if report.returncode != 0:
                 raise ProfileError(f'perf report failed: {report.stderr.strip()[-800:]}')
             results.append((w, parse_report(report.stdout)))
-        for w in windows:
-            try:
-                os.remove(w['map'])
-            except OSError:
-                pass
+        try:
+            os.remove(windows[0]['map'])   # one map, written by the child for all its windows
+        except OSError:
+            pass
     return results
 
 
