@@ -145,3 +145,51 @@ def test_no_circles():
         if m not in state:
             visit(m)
     assert not circles, '\n'.join(' → '.join(c) for c in circles)
+
+
+def top_level_names(path):
+    """Names a module binds at its top level (definitions, assignments, imports; also inside
+    top-level if/try blocks)."""
+    names, body = set(), list(ast.parse(path.read_text(), str(path)).body)
+    while body:
+        node = body.pop()
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            names.add(node.name)
+        elif isinstance(node, (ast.Assign, ast.AnnAssign, ast.AugAssign)):
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            names.update(n.id for t in targets for n in ast.walk(t) if isinstance(n, ast.Name))
+        elif isinstance(node, (ast.Import, ast.ImportFrom)):
+            names.update((a.asname or a.name).split('.')[0] for a in node.names)
+        elif isinstance(node, (ast.If, ast.Try)):
+            body += node.body + node.orelse + getattr(node, 'finalbody', [])
+            body += [n for h in getattr(node, 'handlers', []) for n in h.body]
+    return names
+
+
+@pytest.mark.parametrize('module', sorted(MODULES))
+def test_every_import_of_the_package_resolves(module):
+    """`from .x import y` names a module of the package and something it defines, lazy imports
+    too (a command's `--plot` imports its module only when asked: a module moved to another
+    room once left two of them pointing at nothing)."""
+    path = MODULES[module]
+    package = module if path.name == '__init__.py' else module.rpartition('.')[0]
+    broken = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if not isinstance(node, ast.ImportFrom):
+            continue
+        if node.level:
+            base = package.split('.')
+            target = '.'.join(base[:len(base) - node.level + 1] + ([node.module] if node.module
+                                                                   else []))
+        else:
+            target = node.module
+        if target.split('.')[0] != 'cvt_ros':
+            continue
+        if target not in MODULES:
+            broken.append(f"line {node.lineno}: no module {target}")
+            continue
+        defined = top_level_names(MODULES[target])
+        broken += [f"line {node.lineno}: {target} has no {a.name}" for a in node.names
+                   if a.name != '*' and a.name not in defined
+                   and f"{target}.{a.name}" not in MODULES]
+    assert not broken, f"{module}: {broken}"

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cvt_ros.recording.reader import summary
 from cvt_ros.scenario import HarnessError, load_scenario, run_scenario
 from cvt_ros.scenario.recording import write_mcap
 
@@ -144,12 +145,14 @@ def test_controller_by_module_and_factory(tmp_path, monkeypatch):
 
 
 def test_command_line(tmp_path):
-    out = tmp_path / 'm.json'
+    out, png, mcap = tmp_path / 'm.json', tmp_path / 'm.png', tmp_path / 'm.mcap'
     cmd = [sys.executable, '-m', 'cvt_ros', 'scenario', 'run', 'conveyor_load_step',
            '--duration', '1', '--json', str(out), '--quiet']
-    done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    done = subprocess.run(cmd + ['--plot', str(png), '--mcap', str(mcap)], capture_output=True,
+                          text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     assert json.loads(out.read_text())['metrics']['switches_per_second'] > 0
+    assert png.read_bytes().startswith(b'\x89PNG') and summary(mcap).message_count > 0
     again = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert again.returncode == 2 and 'exists' in again.stderr
     bad = subprocess.run(cmd[:4] + [str(tmp_path / 'none.yaml')], capture_output=True,

@@ -110,11 +110,11 @@ def run_command(args):
         run.write_json(args.json)
         print(f"metrics → {args.json}")
     if args.plot:
-        from .plot import plot_run
+        from ..scenario.plot import plot_run
         plot_run(run, args.plot)
         print(f"plot → {args.plot}")
     if args.mcap:
-        from .recording import write_mcap
+        from ..scenario.recording import write_mcap
         count, error = write_mcap(run, args.mcap, args.overwrite)
         print(f"recording → {args.mcap} ({count} messages)")
         if error is not None:
