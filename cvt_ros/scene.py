@@ -1,11 +1,14 @@
-"""Scene files: ROS 2 parameter files (``cvt_sim: ros__parameters: {...}``) → validated values.
+"""Scene files: ROS 2 parameter files (``/**/cvt_sim: ros__parameters: {...}``) → validated values.
 
 The same file configures the offline CLI and the node (``--ros-args --params-file``). Nested maps
 flatten to dotted names (``linkage: {crank_length: 0.03}`` ≡ ``linkage.crank_length: 0.03``), as
-the ROS 2 parameter-file parser does.
+the ROS 2 parameter-file parser does. The top key names the node as ROS matches it: ``cvt_sim``
+is the node in the root namespace only, ``/**/cvt_sim`` the node in any namespace (the shipped
+scenes), ``/**`` every node.
 """
 import math
 import os
+import re
 import sys
 from pathlib import Path
 
@@ -86,6 +89,29 @@ def _yaml_number(value):
         if not math.isnan(f):
             return f
     return value
+
+
+def key_applies(key, fully_qualified_name):
+    """Whether a params file's top key applies to the node ``fully_qualified_name`` (e.g.
+    ``/line1/cvt_sim``), by rcl's rules: a key without a leading '/' is absolute, a '*' token
+    stands for one name, '**' for any number of them."""
+    tokens = str(key).strip('/').split('/')
+    pattern = ''.join('(/[^/]+)*' if tok == '**' else '/[^/]+' if tok == '*' else
+                      '/' + re.escape(tok) for tok in tokens)
+    return re.fullmatch(pattern, fully_qualified_name) is not None
+
+
+def params_file_problem(path, fully_qualified_name):
+    """Why ROS would give the node nothing from the params file ``path`` (no top key applies to
+    it, so the whole file is skipped without a word), or None."""
+    doc = read_yaml(Path(path), SceneError)
+    keys = list(doc) if isinstance(doc, dict) else []
+    if any(key_applies(k, fully_qualified_name) for k in keys):
+        return None
+    return (f"{path}: no top key applies to this node, {fully_qualified_name} (the file's keys: "
+            f"{', '.join(map(str, keys)) or 'none'}), so ROS would skip the whole file; name the "
+            f"node in any namespace with '/**/{fully_qualified_name.rpartition('/')[2]}:' (as "
+            f"the shipped scenes do) or write '{fully_qualified_name}:'")
 
 
 def read_scene(path):

@@ -38,20 +38,22 @@ def test_signal_shuts_down_cleanly(sig):
 
 
 def test_scene_file_sets_the_parameters_as_offline():
-    """--params-file config/scenes/paper.yaml: the node's parameters are the scene's values as
-    the offline loader reads them; started in lockstep, its solver is the offline one too
-    (dopri5: rk4 is its default only when it starts in realtime)."""
+    """--params-file config/scenes/paper.yaml, the node in a namespace (the shipped scenes' key
+    /**/cvt_sim applies in any): the node's parameters are the scene's values as the offline
+    loader reads them; started in lockstep, its solver is the offline one too (dopri5: rk4 is
+    its default only when it starts in realtime)."""
     domain = domain_id()
     path = os.path.join(SCENES, 'paper.yaml')
-    with NodeProcess(domain, ['--params-file', path, '-p', 'time_mode:=lockstep']) as proc:
+    with NodeProcess(domain, ['--params-file', path, '-p', 'time_mode:=lockstep',
+                              '-r', '__ns:=/line1']) as proc:
         probe = Probe(domain)
         try:
-            assert wait_for(lambda: probe.node.count_publishers('/joint_states') > 0, 180.0), \
-                proc.output()
+            assert wait_for(lambda: probe.node.count_publishers('/line1/joint_states') > 0,
+                            180.0), proc.output()
             expected = load_scene(path)
             names = ['linkage.crank_length', 'inertia.output', 'shaft.stiffness',
                      'motor.breakdown_torque', 'load.torque', 'solver.method', 'time_mode']
-            got = probe.get_parameters('/cvt_sim', names)
+            got = probe.get_parameters('/line1/cvt_sim', names)
             assert got == {n: expected[n] if n != 'time_mode' else 'lockstep' for n in names}
         finally:
             probe.close()
@@ -75,6 +77,21 @@ def test_scene_with_infinite_stiffness_and_integers(tmp_path):
         finally:
             probe.close()
         assert proc.stop(signal.SIGINT)[0] == 0, proc.output()
+
+
+def test_params_file_that_misses_the_node_is_refused_at_start(tmp_path):
+    """ROS skips a params file whose top key does not name the node without a word (`cvt_sim:`
+    is the root namespace's node only): the node would run the defaults, so it stops instead."""
+    scene = tmp_path / 'mixer_root.yaml'
+    scene.write_text('cvt_sim:\n  ros__parameters:\n    load:\n      torque: 6.0\n')
+    domain = domain_id()
+    with NodeProcess(domain, ['--params-file', str(scene), '-r', '__ns:=/line1']) as proc:
+        assert wait_for(lambda: not proc.alive(), 180.0)
+        output = proc.output()
+        assert proc.proc.returncode == 2, output
+    assert (f"{scene}: no top key applies to this node, /line1/cvt_sim (the file's keys: "
+            "cvt_sim)") in output and "'/**/cvt_sim:'" in output, output
+    assert 'Traceback' not in output, output
 
 
 def test_invalid_scene_is_refused_at_start():

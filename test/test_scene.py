@@ -8,7 +8,9 @@ from cvt_ros.physics.linkage import GrashofError
 from cvt_ros.scene import (
     SceneError,
     available_scenes,
+    key_applies,
     load_scene,
+    params_file_problem,
     parse_override,
     read_scene,
     resolve,
@@ -197,3 +199,21 @@ def test_a_ros2_param_dump_is_a_scene(tmp_path):
                            "    qos_overrides:\n      /clock:\n        publisher:\n"
                            "          depth: 1\n    load:\n      torque: 7.0\n", 'dump.yaml')
     assert load_scene(dump)['load.torque'] == 7.0
+
+
+@pytest.mark.parametrize('key, node, applies', [
+    ('cvt_sim', '/cvt_sim', True), ('/cvt_sim', '/cvt_sim', True),
+    ('cvt_sim', '/line1/cvt_sim', False), ('/**/cvt_sim', '/cvt_sim', True),
+    ('/**/cvt_sim', '/line1/a/cvt_sim', True), ('/**/cvt_sim', '/line1/other', False),
+    ('/**', '/line1/other', True), ('/*/cvt_sim', '/line1/cvt_sim', True),
+    ('/*/cvt_sim', '/cvt_sim', False), ('/line1/cvt_sim', '/line2/cvt_sim', False)])
+def test_params_file_keys_apply_as_ros_matches_them(key, node, applies):
+    assert key_applies(key, node) is applies
+
+
+def test_shipped_scenes_apply_to_the_node_in_any_namespace():
+    for name in available_scenes():
+        for node in ('/cvt_sim', '/line1/cvt_sim'):
+            assert params_file_problem(resolve(name), node) is None, name
+    assert 'no top key applies to this node, /line1/conveyor' in params_file_problem(
+        resolve('conveyor'), '/line1/conveyor')

@@ -10,7 +10,7 @@ from rclpy.utilities import remove_ros_args
 
 from ..parameters import ParameterError
 from ..physics.linkage import GrashofError
-from ..scene import SceneError
+from ..scene import SceneError, params_file_problem
 from .node import DEFAULT_SCENE, CvtSimNode
 
 # The loop thread must get the GIL soon after its deadline even while the executor thread is busy
@@ -71,6 +71,15 @@ def _run(argv):
         print(f"cvt_node: {exc}", file=sys.stderr)
         rclpy.try_shutdown()
         return 2
+    # a params file whose key misses the node (a namespace, a renamed node) is skipped by ROS
+    # without a word: the node would run the defaults, the wrong experiment
+    problems = [params_file_problem(path, node.get_fully_qualified_name())
+                for path in _params_files(argv)]
+    if any(problems):
+        print('\n'.join(f"cvt_node: {p}" for p in problems if p), file=sys.stderr)
+        node.destroy_node()
+        rclpy.try_shutdown()
+        return 2
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     node.start()
@@ -84,6 +93,11 @@ def _run(argv):
         node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def _params_files(argv):
+    """The files given with --params-file (ROS arguments)."""
+    return [argv[i + 1] for i, arg in enumerate(argv[:-1]) if arg == '--params-file']
 
 
 if __name__ == '__main__':
