@@ -415,6 +415,25 @@ def test_a_repeated_command_keeps_the_values_apart(tmp_path):
                                                               (0.04, 0.045)]
 
 
+def test_a_command_stream_is_a_closed_loop_not_steps(tmp_path):
+    """A controller that commands every 5 ms for a second (a closed loop), then one command left
+    alone: only that one is a step; the stream is counted per topic, in the text and the JSON,
+    and gets no step lines or plots."""
+    path = tmp_path / 'loop.mcap'
+    stream = {i: ('crank_length_cmd', 0.03 + 1e-5 * (i // 5 % 7)) for i in range(500, 1500, 5)}
+    record_node_like(path, 2500, {**stream, 1600: ('crank_length_cmd', 0.04)})
+    result = analyze_trace(load(str(path))[0][0])
+    assert [s.command.t for s in result.steps] == [pytest.approx(1.6)]
+    assert result.steps[0].previous == stream[1495][1]
+    assert result.streamed_commands == {'crank_length_cmd': 200}
+    out = cvt_sim('analyze', path, '--plots', tmp_path / 'p', '--json', tmp_path / 'r.json').stdout
+    assert out.count('step at t = ') == 1 and '200 commands on crank_length_cmd' in out
+    assert [p.name for p in (tmp_path / 'p').iterdir() if p.name.startswith('step_')] == \
+        ['step_01_crank_length_cmd.png']
+    run = json.loads((tmp_path / 'r.json').read_text())['runs'][0]
+    assert run['streamed_commands'] == {'crank_length_cmd': 200} and len(run['steps']) == 1
+
+
 def test_actual_crank_length_is_read_from_the_recording_old_ones_are_solved(stepped, tmp_path):
     path, rows = stepped
     trace = load(str(path))[0][0]

@@ -33,6 +33,16 @@ class RunAnalysis:
     steps: list[StepResponse]
 
     @property
+    def streamed_commands(self) -> dict[str, int]:
+        """Commands per topic that are not steps (steps.MIN_STEP_CYCLES): a closed loop's."""
+        counts: dict[str, int] = {}
+        for cmd in self.trace.commands:
+            counts[cmd.key] = counts.get(cmd.key, 0) + 1
+        for step in self.steps:
+            counts[step.command.key] -= 1
+        return {key: n for key, n in counts.items() if n}
+
+    @property
     def summary(self) -> dict[str, dict[str, float]]:
         """{'whole_run': …, 'steady_state': …} (the latter {} without a steady state)."""
         return {'whole_run': self.whole_run, 'steady_state': self.steady_metrics}

@@ -26,7 +26,7 @@ import numpy as np
 from ..recording.outputs import OutputFiles
 from .analyze import RunAnalysis
 from .cycles import TWO_PI
-from .steps import SETTLING_BAND, StepResponse, commanded_before
+from .steps import MAX_SHOWN_STEPS, SETTLING_BAND, StepResponse, commanded_before
 from .trace import Trace
 
 __all__ = ['plot_all', 'plot_files', 'step_title']
@@ -163,13 +163,15 @@ def fig_speeds_cycle(analysis: RunAnalysis, path: IO[bytes] | str) -> None:
     _save(plt, fig, path)
 
 
-def _mark_commands(axes, trace: Trace) -> None:
-    for c in trace.commands:
+def _mark_commands(axes, commands: list) -> None:
+    """A dotted line and the value at each of ``commands`` (the steps: a closed loop's stream
+    of commands shows in the commanded crank length, not as thousands of lines)."""
+    for c in commands:
         for ax in axes:
             ax.axvline(c.t, color='k', ls=':', lw=0.9)
-    if trace.commands:
+    if commands:
         top = axes[0]
-        for c in trace.commands:
+        for c in commands:
             what = 'a' if c.key == 'crank_length_cmd' else 'M4'
             top.annotate(f'{what} → {c.value:g}', (c.t, 1.0), xycoords=('data', 'axes fraction'),
                          xytext=(2, -10), textcoords='offset points', fontsize=8)
@@ -296,7 +298,7 @@ def fig_timeseries(analysis: RunAnalysis, path: IO[bytes] | str) -> None:
     axes[4].set_xlabel('simulation time t [s]')
     for a in axes:
         a.grid(alpha=0.3)
-    _mark_commands(axes, tr)
+    _mark_commands(axes, [s.command for s in analysis.steps[:MAX_SHOWN_STEPS]])
     _save(plt, fig, path)
 
 
@@ -410,7 +412,7 @@ def plot_files(analyses: list[RunAnalysis]) -> list[tuple[str, Callable[[IO[byte
                           partial(fig_speeds_cycle, analysis)))
         files.append((prefix + 'timeseries.png', partial(fig_timeseries, analysis)))
         if len(analysis.cycles):
-            for i, step in enumerate(analysis.steps):
+            for i, step in enumerate(analysis.steps[:MAX_SHOWN_STEPS]):
                 files.append((prefix + f'step_{i + 1:02d}_{step.command.key}.png',
                               partial(fig_step, analysis, i)))
     return files

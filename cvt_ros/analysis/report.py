@@ -18,7 +18,7 @@ import numpy as np
 
 from .analyze import RunAnalysis
 from .cycles import CYCLE_FIELDS, physical
-from .steps import SETTLING_BAND, StepResponse
+from .steps import MAX_SHOWN_STEPS, MIN_STEP_CYCLES, SETTLING_BAND, StepResponse
 from .trace import RecordingInfo
 
 __all__ = ['format_run', 'to_json', 'write_cycles_csv']
@@ -163,8 +163,15 @@ def format_run(analysis: RunAnalysis, cycles_shown: int | None = 10) -> str:
                 _fmt('{:9.3f}', v['motor_power']), eta]))
     for key in sorted(flags):
         lines.append(f'  ! {_FLAG_NOTES.get(key, f"{key}: not physical")}')
-    for step in analysis.steps:
+    for step in analysis.steps[:MAX_SHOWN_STEPS]:
         lines.append(_step_line(step))
+    if len(analysis.steps) > MAX_SHOWN_STEPS:
+        lines.append(f'  … and {len(analysis.steps) - MAX_SHOWN_STEPS} more steps (--json lists '
+                     f'them all)')
+    for key, count in analysis.streamed_commands.items():
+        lines.append(f'  {count} commands on {key} followed by the next (or the end) within '
+                     f'fewer than {MIN_STEP_CYCLES} crank cycles (a closed loop): not analysed '
+                     f'as steps; the time series shows them')
     return '\n'.join(lines)
 
 
@@ -231,6 +238,7 @@ def to_json(analyses: Sequence[RunAnalysis], info: RecordingInfo) -> dict[str, A
                        'rise_time': s.rise_time, 'settling_time': s.settling_time,
                        'overshoot': s.overshoot, 'window_end': s.window_end}
                       for s in a.steps],
+            'streamed_commands': a.streamed_commands,
         })
     return _clean({'path': info.path, 'kind': info.kind, 'source': info.source,
                    'scene': info.scene, 'problems': info.problems, 'runs': runs})

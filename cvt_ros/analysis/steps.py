@@ -3,10 +3,12 @@
 :func:`response_metrics` is the definition on any sampled response (times, values, the value
 before and the settled final value): 10 → 90 % rise time, settling time into ±2 % of the change for
 good, overshoot. :func:`step_responses` applies it to the cycle-mean ratio after each command of
-a run, with the final value taken only from a detected steady state (:mod:`.steady`): a ratio
-that is still moving at the end of the window has no final value, so it gets no rise or settling
-time ("not settled"). Both work on plain arrays, for any other response (e.g. closed-loop speed
-steps, :mod:`cvt_ros.analysis.stepinfo`).
+a run that is a step — one that the next command (or the end of the run) follows no sooner than
+MIN_STEP_CYCLES whole crank cycles later: a controller that commands every period or every turn
+is a closed loop, whose commands are no open-loop steps — with the final value taken only from a
+detected steady state (:mod:`.steady`): a ratio that is still moving at the end of the window has
+no final value, so it gets no rise or settling time ("not settled"). Both work on plain arrays,
+for any other response (e.g. closed-loop speed steps, :mod:`cvt_ros.analysis.stepinfo`).
 """
 
 from __future__ import annotations
@@ -20,8 +22,9 @@ from .cycles import CycleTable
 from .steady import MIN_CYCLES, TOLERANCE, SteadyState, find_steady_state
 from .trace import Command, Trace
 
-__all__ = ['RISE_LIMITS', 'SETTLING_BAND', 'ResponseMetrics', 'StepResponse', 'commanded_before',
-           'response_metrics', 'step_responses']
+__all__ = ['MAX_SHOWN_STEPS', 'MIN_STEP_CYCLES', 'RISE_LIMITS', 'SETTLING_BAND',
+           'ResponseMetrics', 'StepResponse', 'commanded_before', 'response_metrics',
+           'step_responses']
 
 #: Settling band: ± this fraction of the change around the final value.
 SETTLING_BAND = 0.02
@@ -29,6 +32,11 @@ SETTLING_BAND = 0.02
 RISE_LIMITS = (0.1, 0.9)
 #: Cycles before a command whose mean is the value before it.
 CYCLES_BEFORE = 5
+#: Whole crank cycles to the next command that make a command a step: closer commands are a
+#: command stream (a closed loop), not steps.
+MIN_STEP_CYCLES = 3
+#: Step responses the text report lists and the plots draw (the JSON holds them all).
+MAX_SHOWN_STEPS = 20
 #: The parameter each command topic sets (its value before the first command).
 COMMAND_PARAMETERS = {'crank_length_cmd': 'linkage.crank_length', 'load_torque_cmd': 'load.torque'}
 
@@ -109,9 +117,11 @@ def commanded_before(trace: Trace, key: str) -> float:
 
 def step_responses(trace: Trace, cy: CycleTable, *, tolerance: float = TOLERANCE,
                    min_cycles: int = MIN_CYCLES) -> list[StepResponse]:
-    """The response to each command of ``trace`` (window: until the next command or the end of
-    the run); ``cy``: the run's cycles; ``tolerance``/``min_cycles``: the test that the ratio
-    has settled, which gives the final value (:func:`~.steady.find_steady_state`)."""
+    """The response to each command of ``trace`` that is a step (window: until the next
+    command or the end of the run; a command followed by the next, or by the end, within fewer
+    than MIN_STEP_CYCLES whole cycles is left out); ``cy``: the run's cycles; ``tolerance``/
+    ``min_cycles``: the test that the ratio has settled, which gives the final value
+    (:func:`~.steady.find_steady_state`)."""
     if not len(cy):
         return []
     mid = cy['t_start'] + 0.5 * cy['period']
@@ -123,8 +133,14 @@ def step_responses(trace: Trace, cy: CycleTable, *, tolerance: float = TOLERANCE
         previous = last.get(cmd.key, math.nan)
         last[cmd.key] = cmd.value
         end = commands[j + 1].t if j + 1 < len(commands) else float(trace.t[-1])
-        before = np.flatnonzero(cy.t_end <= cmd.t)[-CYCLES_BEFORE:]
-        after = np.flatnonzero((cy['t_start'] >= cmd.t) & (cy.t_end <= end))
+        # the cycles wholly inside the window (cycles follow each other: sorted both ways)
+        first = int(np.searchsorted(cy['t_start'], cmd.t, 'left'))
+        stop = int(np.searchsorted(cy.t_end, end, 'right'))
+        if stop - first < MIN_STEP_CYCLES:
+            continue   # a command stream's, or too close to the end to answer
+        ended = int(np.searchsorted(cy.t_end, cmd.t, 'right'))   # cycles over by the command
+        before = np.arange(max(0, ended - CYCLES_BEFORE), ended)
+        after = np.arange(first, max(first, stop))
         rb = float(np.mean(ratio[before])) if len(before) else math.nan
         sb = float(np.mean(speed[before])) if len(before) else math.nan
         steady = None
