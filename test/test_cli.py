@@ -58,6 +58,9 @@ def test_console_script_and_module_are_the_same_program():
     (('run', 'nowhere', '--duration', '1'), 'not found'),
     (('run', 'paper', '--duration', '-1'), 'positive'),
     (('run', 'paper', '--duration', '1', '--set', 'load.torque'), 'key=value'),
+    (('run', 'paper', '--duration', '1', '--csv', '/nonexistent/x.csv'),
+     '/nonexistent/x.csv: no such directory /nonexistent'),
+    (('run', 'paper', '--duration', '1', '--csv', '/'), '/: is a directory, not a file'),
 ])
 def test_bad_input_is_one_clear_line_and_exit_2(args, fragment):
     proc = cvt_sim(*args, check=False)

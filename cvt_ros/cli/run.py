@@ -37,7 +37,8 @@ def add_parsers(sub):
                           '--set linkage.crank_length=0.04 (repeatable; `cvt-sim params`)')
     run.add_argument('--sample-dt', type=positive_seconds(MAX_DURATION), default=1e-3,
                      metavar='DT', help='sample interval of the output [s] (default 0.001)')
-    run.add_argument('--csv', metavar='FILE', help='write the samples to this CSV file')
+    run.add_argument('--csv', metavar='FILE',
+                     help='write the samples to this CSV file (replaced if it exists)')
     run.add_argument('--quiet', action='store_true', help='no progress bar')
     run.add_argument('--mcap', metavar='FILE',
                      help='record the run to this MCAP file (rosbag2 format: joint_states, '
@@ -161,7 +162,14 @@ def run_command(args):
     overrides, origins = overrides_from(args.set)
     load_scene(args.scene, overrides, origins)   # every input error before any work
     pick_fidelity(args, overrides, origins)
-    if args.mcap:  # refuse a target that cannot be written before a long run, not after it
+    # refuse a target that cannot be written before a long run, not after it
+    if args.csv:   # (replaced if it exists, as export's and analyze's outputs are)
+        from ..recording import OutputFiles
+        targets = OutputFiles()
+        for path in (args.mcap, args.csv):
+            if path:
+                targets.check(path)
+    if args.mcap:
         from ..recording.recorder import check_target
         check_target(args.mcap, args.overwrite)
     statistics = SampleStatistics(tail_start(0.0, args.duration))
