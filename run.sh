@@ -7,7 +7,10 @@
 #   ./run.sh bench    the benchmarks (writes BENCHMARKS.md and plots)
 #   ./run.sh cvt-sim ARGS...   any cvt-sim command inside the environment
 #   ./run.sh ros2 ARGS...      the ROS 2 command line (upstream ros2cli, vendored in third_party/)
+# cvt-sim and ros2 run in the caller's directory (relative paths are the caller's); the set-up,
+# demo, test and bench run in this checkout.
 set -euo pipefail
+CALLER=$PWD
 cd "$(dirname "$0")"
 ROOT=$PWD
 VENV=$ROOT/.venv
@@ -87,8 +90,9 @@ case "$cmd" in
     demo)    exec "$VENV/bin/python" -m cvt_ros demo "$@" ;;
     test)    exec "$VENV/bin/python" -m pytest -q test "$@" ;;
     bench)   exec "$VENV/bin/python" -m cvt_ros bench "$@" ;;
-    cvt-sim) exec "$VENV/bin/python" -m cvt_ros "$@" ;;
+    cvt-sim) cd "$CALLER"; exec "$VENV/bin/python" -m cvt_ros "$@" ;;
     ros2)
+        cd "$CALLER"
         if [ ! -x "$VENV/bin/ros2" ]; then
             echo "run.sh: no ros2 command in $VENV: the ros2cli sources were not found in" \
                  "$ROS2CLI_VENDOR (set CVT_ROS2CLI_VENDOR to their folder)" >&2; exit 2
