@@ -1,6 +1,8 @@
 """The command line as a user runs it: real processes, real files."""
+import argparse
 import csv
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -85,3 +87,25 @@ def test_progress_bar_stays_off_a_short_run_and_out_of_stdout(tmp_path):
     assert '%|' not in proc.stderr and '%|' not in proc.stdout
     env = dict(os.environ)
     assert env.get('AMENT_PREFIX_PATH')
+
+
+def _help_texts(parser):
+    """The --help text of a parser and of every subcommand under it."""
+    yield parser.format_help()
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                yield from _help_texts(sub)
+
+
+def test_files_named_in_help_texts_exist():
+    """An example in --help that names a shipped file names one that is there (the sweep
+    example once named a campaign that had been renamed)."""
+    from cvt_ros.cli.cvt_sim import build_parser
+    from cvt_ros.device.main import build_parser as node_parser
+    root = Path(__file__).resolve().parent.parent
+    texts = [*_help_texts(build_parser()), node_parser().format_help()]
+    named = {m for text in texts for m in re.findall(
+        r'(?<![\w/.])((?:config|docs|launch)/[\w./-]*\.(?:yaml|md|py|png|json|csv))', text)}
+    assert 'docs/node.md' in named and len(named) > 5
+    assert not [p for p in named if not (root / p).exists()]

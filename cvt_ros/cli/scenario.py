@@ -8,7 +8,8 @@ import sys
 
 from ..recording.errors import RecordingError
 from ..scenario.harness import HarnessError, run_scenario
-from ..scenario.model import ScenarioError, available_scenarios, load_scenario
+from ..scenario.model import MAX_DURATION, ScenarioError, available_scenarios, load_scenario
+from .arguments import positive_seconds
 
 
 def add_parser(sub):
@@ -25,7 +26,7 @@ def add_parser(sub):
         'run', help='run one scenario with a controller',
         description='Run SCENARIO (a file or a shipped scenario name) with a controller. '
                     'Without --controller the reference controller (cycle-mean speed PI) runs. '
-                    'Prints the step metrics (rise time, overshoot, settling time 2 %%, '
+                    'Prints the step metrics (rise time, overshoot, settling time 2 %, '
                     'steady-state error, IAE, peak clutch torque, crank travel, switches/s).')
     run.add_argument('scenario', help='scenario file or name (see `cvt-sim scenario list`)')
     who = run.add_mutually_exclusive_group()
@@ -47,12 +48,16 @@ def add_parser(sub):
     run.add_argument('--mcap', metavar='OUT', help='record the run (rosbag2 MCAP)')
     run.add_argument('--plot', metavar='OUT.png', help='write the plot (speed, crank, load, '
                                                       'clutch)')
-    run.add_argument('--duration', type=float, metavar='T', help='override the duration [s]')
+    run.add_argument('--duration', type=positive_seconds(MAX_DURATION), metavar='T',
+                     help="simulated time [s] instead of the file's: shorter drops the changes "
+                          "after T, longer holds the last set point and load")
     run.add_argument('--seed', type=int, help='override the seed')
     run.add_argument('--overwrite', action='store_true', help='replace existing output files')
     run.add_argument('--quiet', action='store_true', help='no progress bar, no table')
     run.set_defaults(func=run_command)
-    lst = ssub.add_parser('list', help='list the shipped scenarios')
+    lst = ssub.add_parser('list', help='list the shipped scenarios',
+                          description='The shipped scenarios (config/scenarios), each with the '
+                                      'first line of its file; run one by its name.')
     lst.set_defaults(func=list_command)
     scenario.set_defaults(func=lambda args: (scenario.print_help(), 2)[1])
 

@@ -18,7 +18,7 @@ examples:
   cvt-sim sweep config/campaigns/conveyor_ratio_map.yaml --out ratio_map/
   cvt-sim sweep config/campaigns/conveyor_pi_gains.yaml --out gains/ --workers 8
   cvt-sim sweep big.yaml --out big/ --scheduler tcp://head-node:8786 --yes
-  cvt-sim sweep config/campaigns/shaft_stiffness.yaml --out x/ --dry-run   # check, list cases
+  cvt-sim sweep config/campaigns/conveyor_shaft_stiffness.yaml --out x/ --dry-run  # list cases
 
 DIR gets results.parquet (one row per case: parameters, metrics, status, error, wall time),
 summary.png and campaign.yaml (the campaign as run). Rerunning the same command skips the cases

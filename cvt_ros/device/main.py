@@ -22,10 +22,23 @@ GIL_SWITCH_INTERVAL_S = 1e-4
 PUBLICATION_MODE = ('RMW_FASTRTPS_PUBLICATION_MODE', 'SYNCHRONOUS')
 
 
+EPILOG = """\
+examples:
+  cvt_node                                          # conveyor scene, realtime, 1 kHz
+  cvt_node --scene mixer --ros-args -r __ns:=/line1 # another scene, in a namespace
+  cvt_node --ros-args --params-file config/scenes/stiff_shaft.yaml -p time_mode:=lockstep
+  cvt_node --ros-args -p time_mode:=fast -p publish_rate:=100.0
+
+parameters: `cvt-sim params --node` lists every one (unit, default, range); topics, services,
+time modes and diagnostics: docs/node.md; the lockstep protocol: docs/lockstep.md.
+"""
+
+
 def build_parser():
     p = argparse.ArgumentParser(
         prog='cvt_node', description='The pulse CVT as a ROS 2 node (cvt_sim). Parameters come '
-        'from --ros-args --params-file SCENE.yaml and -p name:=value.')
+        'from\n--ros-args --params-file SCENE.yaml and -p name:=value.', epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument('--scene', default=None,
                    help='base scene (name such as conveyor, or a path): fills in every parameter '
                         'not set by --params-file / -p. Default: conveyor, or the built-in '
