@@ -71,6 +71,12 @@ def test_bad_input_is_one_clear_line_and_exit_2(args, fragment):
     assert 'Traceback' not in proc.stderr
 
 
+def test_the_averaged_model_prints_no_switches_or_peaks_it_cannot_have():
+    out = cvt_sim('run', 'paper', '--duration', '1', '--fidelity', 'averaged', '--quiet').stdout
+    assert 'clutch switches  n/a: the averaged model has no clutch events' in out
+    assert 'peaks            n/a: the averaged model follows cycle means' in out
+
+
 def test_params_lists_every_parameter_with_its_unit():
     out = cvt_sim('params').stdout
     assert 'linkage.crank_length' in out and 'N*m/rad' in out
