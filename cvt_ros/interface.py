@@ -41,8 +41,8 @@ __all__ = [
     'POSITION_COLUMNS', 'VELOCITY_COLUMNS', 'EFFORT_COLUMNS',
     'bool_cdr', 'clock_cdr', 'clock_msg', 'clock_qos', 'clutch_msg', 'clutch_qos',
     'command_msg', 'command_qos', 'decode_joint_state', 'decode_joint_state_cdr',
-    'diagnostics_qos', 'float64_cdr', 'joint_order', 'joint_state_cdr', 'joint_state_from_row',
-    'joint_state_stamp_ns',
+    'diagnostics_qos', 'float64_cdr', 'joint_command_crank_length', 'joint_order',
+    'joint_state_cdr', 'joint_state_from_row', 'joint_state_stamp_ns',
     'joint_states_qos', 'qos_profile', 'resolve_topic', 'resolved_topics', 'set_stamp',
     'stamp_ns', 'time_to_ns', 'topic_key',
 ]
@@ -504,6 +504,20 @@ def decode_joint_state_cdr(data: bytes, order: Sequence[int] | None = None
     values = JointStateValues(ns, _pick(position, order), _pick(velocity, order),
                               _pick(effort, order))
     return values, names
+
+
+def joint_command_crank_length(data: bytes) -> float | None:
+    """The crank-length command [m] of joint_commands CDR bytes: the position of the entry named
+    ACTUATOR_JOINT (with any joint prefix); None when there is none or it is not finite (the
+    node refuses those)."""
+    try:
+        _, _, names, position, _, _ = _parse_joint_state(data)
+    except ValueError:
+        return None
+    for name, value in zip(names, position, strict=False):
+        if name.endswith(ACTUATOR_JOINT):
+            return value if math.isfinite(value) else None
+    return None
 
 
 def _parse_joint_state(data: bytes) -> tuple[int, str, list[str], tuple, tuple, tuple]:

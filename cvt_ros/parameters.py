@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .physics import layout as L
-from .physics.linkage import GrashofError, check_crank_length
+from .physics.linkage import GrashofError, check_crank_length, grashof_bound
 
 
 class ParameterError(ValueError):
@@ -77,8 +77,9 @@ class ParameterSpec:
         return not (value < self.low or (self.low_open and value <= self.low)
                     or value > self.high)
 
-    def check(self, value):
-        """Coerce ``value`` to this parameter's type or raise ParameterError with the reason."""
+    def check(self, value, high=None):
+        """Coerce ``value`` to this parameter's type or raise ParameterError with the reason;
+        ``high``: the value of a ``high_name`` bound, for the reason's text."""
         if self.choices:
             if isinstance(self.default, int) and not isinstance(value, bool):
                 if isinstance(value, float) and value.is_integer():
@@ -103,19 +104,19 @@ class ParameterSpec:
                 raise ParameterError(self.name, f"expected a whole number, got {value!r}")
             if not self.contains(value):
                 raise ParameterError(self.name, f"{_short(value)}{unit} is outside "
-                                                f"{self.range_text()}")
+                                                f"{self.range_text(high)}")
             return int(value)
         try:
             number = float(value)
         except OverflowError:   # an integer literal beyond the float range
             raise ParameterError(self.name, f"{_short(value)}{unit} is beyond any float; "
-                                            f"accepted: {self.range_text()}") from None
+                                            f"accepted: {self.range_text(high)}") from None
         if math.isnan(number) or (math.isinf(number) and not (self.allow_inf and number > 0)):
             raise ParameterError(self.name, f"{number!r} is not a finite number [{self.unit}]; "
-                                            f"accepted: {self.range_text()}")
+                                            f"accepted: {self.range_text(high)}")
         if not self.contains(number):
             raise ParameterError(self.name, f"{number_text(number)}{unit} is outside "
-                                            f"{self.range_text()}")
+                                            f"{self.range_text(high)}")
         return number
 
 
@@ -276,13 +277,21 @@ def validate(values):
     the paper formulation's needs) raise ParameterError / GrashofError with value and limit.
     """
     out = defaults()
+    bounded = []    # checked once the geometry that sets their bound is known
     for name, value in values.items():
         if name not in SPECS:
             close = difflib.get_close_matches(name, list(SPECS), n=1)
             known = (f"did you mean {close[0]}? (`cvt-sim params` lists every name)" if close
                      else f"valid: {', '.join(sorted(SPECS))}")
             raise ParameterError(name, f"unknown parameter; {known}")
-        out[name] = SPECS[name].check(value)
+        if SPECS[name].high_name:
+            bounded.append(name)
+        else:
+            out[name] = SPECS[name].check(value)
+    for name in bounded:   # (the crank length: its range's text gives the Grashof bound)
+        out[name] = SPECS[name].check(values[name], high=grashof_bound(
+            out['linkage.rocker_length'], out['linkage.coupler_length'],
+            out['linkage.pivot_distance']))
     try:
         check_crank_length(out['linkage.crank_length'], out['linkage.rocker_length'],
                            out['linkage.coupler_length'], out['linkage.pivot_distance'])

@@ -65,8 +65,14 @@ def record_node_like(path, steps, commands, scene='paper'):
         for i in range(steps):
             if i in commands:
                 key, value = commands[i]
-                rec.record_command(key, value, sim.t)
-                if key == 'crank_length_cmd':
+                if key == 'joint_commands':   # topic_based_ros2_control's crank command
+                    from rclpy.serialization import serialize_message
+                    from sensor_msgs.msg import JointState
+                    rec.write(rec.topics[key], serialize_message(JointState(
+                        name=['crank_length'], position=[value])), round(sim.t * 1e9))
+                else:
+                    rec.record_command(key, value, sim.t)
+                if key in ('crank_length_cmd', 'joint_commands'):
                     sim.command_crank_length(value)
                 else:
                     sim.set_load_torque(value)
@@ -432,6 +438,17 @@ def test_a_command_stream_is_a_closed_loop_not_steps(tmp_path):
         ['step_01_crank_length_cmd.png']
     run = json.loads((tmp_path / 'r.json').read_text())['runs'][0]
     assert run['streamed_commands'] == {'crank_length_cmd': 200} and len(run['steps']) == 1
+
+
+def test_joint_commands_are_crank_length_commands(tmp_path):
+    """A ros2_control controller commands through joint_commands (the crank_length joint's
+    position): analysis reads those as crank-length commands, as the node applies them."""
+    path = tmp_path / 'r2c.mcap'
+    record_node_like(path, 2000, {500: ('joint_commands', 0.04)})
+    (step,) = analyze_trace(load(str(path))[0][0]).steps
+    assert (step.command.key, step.command.value, step.previous) == ('crank_length_cmd', 0.04,
+                                                                     0.03)
+    assert step.command.t == pytest.approx(0.5)
 
 
 def test_actual_crank_length_is_read_from_the_recording_old_ones_are_solved(stepped, tmp_path):

@@ -256,7 +256,8 @@ def load_mcap(path: str, *, namespace: str | None = None
             if key == 'joint_states':
                 js_data.append(m.data)
                 js_log.append(m.log_time_ns)
-            elif key in ('clutch_engaged', 'crank_length_cmd', 'load_torque_cmd'):
+            elif key in ('clutch_engaged', 'crank_length_cmd', 'load_torque_cmd',
+                         'joint_commands'):
                 events.append((key, m.log_time_ns, m.publish_time_ns, m.data))
     except RecordingReadError as exc:
         # the summary's scan reported the same damage; keep the reader's wording once
@@ -360,7 +361,10 @@ def _split_runs(path: str, samples: _Samples, events: list, parameters: dict | N
         switch_t, switch_on, commands = [], [], []
         run_log = samples.log[lo:hi]
         for key, lt, pt, data in events[start:max(start, stop)]:
-            value = _event_value(key, data)
+            if key == 'joint_commands':   # topic_based_ros2_control's crank-length command
+                key, value = 'crank_length_cmd', I.joint_command_crank_length(data)
+            else:
+                value = _event_value(key, data)
             if value is None:
                 continue
             if ours:

@@ -156,6 +156,6 @@ class ScenarioRun:
     def summary_line(self):
         status = 'completed' if self.ok else f"STOPPED: {self.error}"
         return (f"{self.scenario.name}: {self.backend}, {self.duration:g} s simulated in "
-                f"{self.wall_time:.3f} s ({self.real_time_factor:.0f}x real time), "
+                f"{self.wall_time:.3f} s ({self.real_time_factor:.3g}x real time), "
                 f"{len(self.switches)} clutch switches, {self.clamped} commands clamped; "
                 f"{status}")
