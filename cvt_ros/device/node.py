@@ -16,6 +16,7 @@ Device and publishes.
 """
 import gc
 import math
+import sys
 import threading
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -60,6 +61,25 @@ _FIELDS = ([COL[c] for c in interface.POSITION_COLUMNS] + [_A]
 _RATE_SLOT, _FORCE_SLOT = 9, 14
 
 
+class _LoopLogger:
+    """The node's logger as the loop thread uses it (warning / error / info), to stderr once the
+    context is shut down: SIGINT shuts it down before the loop thread is stopped, and a warning
+    logged in between made rcl print 'Failed to publish log message to rosout'."""
+
+    def __init__(self, logger, context):
+        self._logger, self._context = logger, context
+
+    def __getattr__(self, level):
+        log = getattr(self._logger, level)
+
+        def emit(text):
+            if self._context.ok():
+                log(text)
+            else:
+                print(f"[{level.upper()}] [{self._logger.name}]: {text}", file=sys.stderr)
+        return emit
+
+
 class _CommandGroup(WaitedApart):
     """The command subscriptions' callback group: the executor leaves them alone, the loop
     thread takes their messages itself (``CvtSimNode.wait_commands``: its own rcl wait set).
@@ -97,7 +117,8 @@ class CvtSimNode(Node):
         # the last accepted commands (executor thread; the loop applies them a step later)
         self._crank_target = values['linkage.crank_length']
         self._load_command = values['load.torque']
-        self.loop = RunLoop(self.device, self, self.get_logger(), values)
+        self.loop = RunLoop(self.device, self, _LoopLogger(self.get_logger(), self.context),
+                            values)
         self._reporter = Reporter()
         self._recorder = None
         self._record_lock = threading.Lock()
