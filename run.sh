@@ -66,7 +66,7 @@ ament_register() {
     ln -sfn "$ROOT/launch" "$share/launch"
     # setup.cfg puts the console scripts into lib/cvt_ros (where `ros2 run` looks); the venv's
     # bin/ gets links so that `.venv/bin/cvt_node` works too (and the other way round)
-    for exe in cvt-sim cvt_node; do
+    for exe in cvt-sim cvt_node cvt_speed_controller cvt_linkage_markers; do
         if [ -f "$lib/$exe" ] && [ ! -e "$VENV/bin/$exe" ]; then
             ln -sfn "$lib/$exe" "$VENV/bin/$exe"
         elif [ -f "$VENV/bin/$exe" ] && [ ! -e "$lib/$exe" ]; then
@@ -85,6 +85,7 @@ env_vars() {
 cmd=${1:-demo}
 [ $# -gt 0 ] && shift
 setup
+ament_register   # (cheap; a venv set up before an executable was added gets its link too)
 env_vars
 case "$cmd" in
     demo)    exec "$VENV/bin/python" -m cvt_ros demo "$@" ;;

@@ -192,7 +192,9 @@ def test_ros2_run_starts_the_node_and_pkg_lists_its_executables(cli):
     proc = typo.popen('run', 'cvt_ros', 'cvt_node', '--ros-args', '-p', 'time_mod:=fast')
     executables = cli.ros2.run('pkg', 'executables', 'cvt_ros')
     output = proc.communicate(timeout=TIMEOUT)[0]
-    assert {'cvt_ros cvt_node', 'cvt_ros cvt-sim'} <= set(executables.splitlines()), executables
+    # every console script, the ones cvt_controller.launch.py starts included
+    assert {'cvt_ros cvt_node', 'cvt_ros cvt-sim', 'cvt_ros cvt_speed_controller',
+            'cvt_ros cvt_linkage_markers'} <= set(executables.splitlines()), executables
     assert proc.returncode == 2, output
     assert 'unknown parameter time_mod (did you mean time_mode?)' in output, output
     assert 'Traceback' not in output, output

@@ -50,6 +50,21 @@ def test_reference_controller_follows_set_point_steps():
     assert (a[k_up] - a[k_end]) * 1e3 * 1.46 == pytest.approx(25.0, rel=0.15)
 
 
+def test_a_step_that_never_settles_leaves_the_run_without_a_settling_time():
+    """A controller that holds the crank never follows the 55 → 70 rad/s step: that step has no
+    rise or settling time, so the run's worst is unknown (NaN) — `settling_time < 2` must fail,
+    not pass on the start-up step's figure."""
+    run = run_scenario(load_scenario('conveyor_setpoint_steps', {'duration': 6.0}),
+                       lambda measurement: 0.04)
+    held = run.steps[1]
+    assert held['kind'] == 'setpoint' and math.isnan(held['settling_time'])
+    assert math.isfinite(run.steps[0]['settling_time'])
+    assert math.isnan(run.metrics['settling_time']) and math.isnan(run.metrics['rise_time'])
+    assert not run.metrics['settling_time'] < 2.0
+    # no load step: no disturbance to deviate from
+    assert math.isnan(run.metrics['max_deviation'])
+
+
 def test_json_table_and_plot(load_step_run, tmp_path):
     run = load_step_run
     path = tmp_path / 'm.json'

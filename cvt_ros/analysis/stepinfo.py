@@ -19,8 +19,10 @@ rf the set point at the end of the window and Δ = rf − y0:
 * ``peak_clutch_torque`` [N·m], ``crank_travel`` [m] (Σ|Δa| of the actual crank length),
   ``switches_per_second`` [1/s]: what the step cost the mechanism.
 
-The run-level summary (:func:`summarize_steps`) takes the worst of each over the steps, and IAE,
-peak clutch torque, crank travel and switches per second over the whole run.
+The run-level summary (:func:`summarize_steps`) takes the worst of each over the steps (NaN if
+one of them has none: a step that never settles leaves the run without a settling time; the max
+deviation over the load steps only, NaN without one), and IAE, peak clutch torque, crank travel
+and switches per second over the whole run.
 """
 
 from __future__ import annotations
@@ -149,11 +151,23 @@ def summarize_steps(steps: list[dict], trace: Trace, reference_t: np.ndarray,
                     reference: np.ndarray) -> dict:
     """Run-level metrics: the worst step for the step metrics (rise time, overshoot, settling
     time, |steady-state error| of the last step, max deviation), the whole run for IAE, peak
-    clutch torque, crank travel and switches per second."""
+    clutch torque, crank travel and switches per second. A step that never reaches 90 % or
+    never settles makes the run's rise or settling time NaN: the worst of the steps is not
+    known, and a test asserting a bound on it must fail."""
+    def applies(step, name):
+        """A step with nothing to follow (the set point as the speed already is) has no rise,
+        overshoot or settling to be the worst of."""
+        moved = step['after'] != step['before']
+        if name in ('rise_time', 'overshoot'):
+            return step['kind'] in ('start', 'setpoint') and moved
+        return name != 'settling_time' or step['kind'] == 'load' or moved
+
     def worst(name, kinds=None):
         vals = [s[name] for s in steps if (kinds is None or s['kind'] in kinds)
-                and math.isfinite(s[name])]
-        return max(vals, key=abs) if vals else math.nan
+                and applies(s, name)]
+        if not vals or any(math.isnan(v) for v in vals):
+            return math.nan
+        return max(vals, key=abs)
     whole = step_metrics(trace, reference_t, reference,
                          [StepEvent(float(trace.t[0]), 'start', math.nan, math.nan)])[0]
     return {
