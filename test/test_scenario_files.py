@@ -93,6 +93,10 @@ def test_missing_keys_and_files(tmp_path):
         load_scenario(write(tmp_path, BASE.replace('conveyor', 'no_such_scene')))
     with pytest.raises(ScenarioError, match='YAML'):
         load_scenario(write(tmp_path, 'scene: [unclosed\n'))
+    # a misspelled override is the caller's mistake, not the shipped file's
+    with pytest.raises(ScenarioError, match=r"^override of .*conveyor_load_step.yaml: unknown "
+                                            r"key 'duraton' \(did you mean duration\?\)"):
+        load_scenario('conveyor_load_step', {'duraton': 3.0})
 
 
 def test_schedule_kinds_evaluate_as_documented(tmp_path):

@@ -110,7 +110,8 @@ class Boom:
 
 
 @pytest.mark.parametrize('controller, cause', [
-    (Boom(1.0), 'raised ZeroDivisionError'),
+    (Boom(1.0), f"raised ZeroDivisionError('gain scheduling table empty') at t = 1.000000 s "
+                f"(period 1000) in {__file__}:"),
     (Boom(1.0, float('nan')), 'not a finite crank length'),
     (Boom(1.0, 'long'), 'not a crank length'),
 ])
@@ -122,6 +123,8 @@ def test_a_bad_controller_stops_the_run_and_keeps_what_ran(controller, cause, tm
     assert math.isfinite(run.metrics['iae'])               # metrics up to that moment
     count, error = write_mcap(run, tmp_path / 'part.mcap')
     assert error is None and count > 1000
+    raised = isinstance(controller.answer, type(None))
+    assert isinstance(run.exception, ZeroDivisionError) is raised   # with its traceback
 
 
 def test_commands_outside_the_limits_are_clamped_and_counted():

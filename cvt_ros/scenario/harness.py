@@ -19,6 +19,7 @@ import importlib
 import inspect
 import math
 import time
+import traceback
 
 import numpy as np
 
@@ -143,7 +144,7 @@ def _loop(scenario, controller, plant, controller_name, progress):
     sent = previous                # last command the plant got [m]
     load_now = loads[0]
     clamped = 0
-    error = None
+    error = exception = None
     every = max(1, n // 100)
     skips = getattr(plant, 'skips_periods', False)   # realtime: the newest sample only
     k = 0
@@ -164,8 +165,10 @@ def _loop(scenario, controller, plant, controller_name, progress):
             try:
                 a = controller(m)
             except Exception as exc:   # noqa: BLE001 — the user's code: report, keep the run
+                where = traceback.extract_tb(exc.__traceback__)[-1]   # the raising line
                 raise ControllerError(f"the controller raised {exc!r} at t = {r[0]:.6f} s "
-                                      f"(period {k})") from exc
+                                      f"(period {k}) in {where.filename}:{where.lineno} "
+                                      f"({where.name})") from exc
             if a is not None:
                 try:
                     a = float(a)
@@ -194,7 +197,7 @@ def _loop(scenario, controller, plant, controller_name, progress):
                 progress(k_next * dt, scenario.duration)
             k = k_next
     except ControllerError as exc:
-        error = str(exc)
+        error, exception = str(exc), exc.__cause__
     except SimulationError as exc:
         error = f"the simulation failed in period {k}: {exc}"
     except KeyboardInterrupt:
@@ -214,4 +217,4 @@ def _loop(scenario, controller, plant, controller_name, progress):
     return ScenarioRun(scenario=scenario, backend=plant.name, controller=controller_name,
                        samples=samples, setpoint=setpoint[keep], load=load[keep],
                        commands=commands[keep], switches=switches, clamped=clamped,
-                       wall_time=wall, error=error)
+                       wall_time=wall, error=error, exception=exception)

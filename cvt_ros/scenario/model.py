@@ -128,14 +128,17 @@ def load_scenario(path, overrides=None):
     if not isinstance(doc, dict):
         raise ScenarioError(f"{path}: expected a map of scenario keys ({', '.join(KEYS)}), got "
                             f"{type(doc).__name__}")
-    doc = dict(doc, **(overrides or {}))
+    overrides = dict(overrides or {})
+    doc = dict(doc, **overrides)
     where = str(path)
     unknown = [k for k in doc if k not in KEYS]
     if unknown:
         import difflib
         close = difflib.get_close_matches(str(unknown[0]), KEYS, n=1)
         hint = f" (did you mean {close[0]}?)" if close else ''
-        raise ScenarioError(f"{where}: unknown key {unknown[0]!r}{hint}; allowed: "
+        # an override's typo is the caller's, not the file's
+        blamed = f"override of {path}" if unknown[0] in overrides else where
+        raise ScenarioError(f"{blamed}: unknown key {unknown[0]!r}{hint}; allowed: "
                             f"{', '.join(KEYS)}")
     for need in ('scene', 'duration', 'setpoint'):
         if need not in doc:

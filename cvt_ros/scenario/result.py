@@ -16,7 +16,8 @@ class ScenarioRun:
     """``samples``: (n+1, COLUMNS) plant samples at t_k = k·period (the true state, not the
     sensed one); ``setpoint``, ``load``: the schedules at t_k; ``commands``: the crank-length
     command of period k after the limiter (NaN: the controller kept the last one); ``switches``:
-    (t, engaged) clutch switches; ``error``: why the run stopped early (None: it ran to the end)."""
+    (t, engaged) clutch switches; ``error``: why the run stopped early (None: it ran to the end);
+    ``exception``: what the controller raised, with its traceback (None otherwise)."""
     scenario: object
     backend: str
     controller: str
@@ -28,6 +29,7 @@ class ScenarioRun:
     clamped: int = 0
     wall_time: float = 0.0
     error: str = None
+    exception: BaseException = None
 
     # ------------------------------------------------------------------ derived
     @property
