@@ -26,6 +26,11 @@ def test_prepare_writes_what_the_nodes_read(tmp_path):
     assert len(times) == files.scenario.periods + 1
     assert values[0] == 55.0 and values[np.searchsorted(times, 2.0)] == 70.0
     assert files.controller['rate_limit'] == 0.01 and files.geometry['pivot_distance'] == 0.2
+    assert doc['solver.method'] == 'dopri5'     # lockstep: the offline answer
+    # realtime: a fixed cost per period, as cvt_node chooses when nothing names the solver
+    live = prepare('conveyor_setpoint_steps', tmp_path / 'rt', 'realtime')
+    doc = yaml.safe_load(Path(live.device_params).read_text())['cvt_sim']['ros__parameters']
+    assert doc['solver.method'] == 'rk4' and doc['time_mode'] == 'realtime'
 
 
 def test_launch_description_builds():

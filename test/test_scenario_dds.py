@@ -74,6 +74,7 @@ def test_realtime_rehearsal_records_every_period():
     sc = load_scenario('conveyor_load_step', {'duration': 1.5})
     run = run_scenario(sc, backend='dds', realtime=1.0)
     assert run.ok, run.error
+    assert 'dds, realtime 1x' in run.summary_line() and run.to_dict()['realtime'] == 1.0
     assert len(run.t) == sc.periods + 1                       # from the node's own recording
     assert np.allclose(np.diff(run.t), sc.control_period)
     assert np.isfinite(run.commands).sum() > 10               # the law acted once per turn

@@ -109,7 +109,7 @@ def _window(trace, tm, t_start, t_end, y, r_mid, ref_t, ref, a, tc, ev, t_e):
         m['crank_travel'] = float(np.nansum(np.abs(np.diff(aw)))) if len(aw) > 1 else 0.0
     if span > 0:
         n_sw = np.count_nonzero((trace.switch_t > ev.t) & (trace.switch_t <= t_e))
-        m['switches_per_second'] = n_sw / span
+        m['switches_per_second'] = int(n_sw) / span
     idx = np.flatnonzero(inside)
     if not len(idx):
         return m

@@ -217,4 +217,5 @@ def _loop(scenario, controller, plant, controller_name, progress):
     return ScenarioRun(scenario=scenario, backend=plant.name, controller=controller_name,
                        samples=samples, setpoint=setpoint[keep], load=load[keep],
                        commands=commands[keep], switches=switches, clamped=clamped,
-                       wall_time=wall, error=error, exception=exception)
+                       wall_time=wall, error=error, exception=exception,
+                       realtime=getattr(plant, 'realtime', None))

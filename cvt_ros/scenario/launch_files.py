@@ -7,6 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..device.descriptors import REALTIME_SOLVER
+from ..scene import read_scene
 from .dds import node_parameters, write_params_file
 from .model import load_scenario
 from .plants import plant_values
@@ -26,6 +28,10 @@ def prepare(scenario, out_dir, time_mode='realtime', real_time_factor=1.0, recor
     sc = load_scenario(scenario)
     os.makedirs(out_dir, exist_ok=True)
     params = node_parameters(plant_values(sc), sc.control_period, time_mode, real_time_factor)
+    if time_mode == 'realtime' and 'solver.method' not in {**read_scene(sc.scene),
+                                                           **sc.overrides}:
+        # as cvt_node itself does when nothing names the solver: a fixed cost per period
+        params['solver.method'] = REALTIME_SOLVER
     params['record.path'] = record
     device_params = os.path.join(out_dir, f"{sc.name}_device.yaml")
     write_params_file(device_params, params)

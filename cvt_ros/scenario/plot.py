@@ -82,7 +82,7 @@ def plot_run(run, path):
         return f"{name} {v * scale:.3g} {unit}" if v is not None and math.isfinite(v) \
             else f"{name} n/a"
     status = '' if run.ok else f"\nSTOPPED: {run.error}"
-    fig.suptitle(f"{run.scenario.name} — {run.backend}, {run.controller}\n"
+    fig.suptitle(f"{run.scenario.name} — {run.backend_text}, {run.controller}\n"
                  f"{fmt('rise_time', 's')}, {fmt('overshoot', '%')}, "
                  f"{fmt('settling_time', 's')}, {fmt('steady_state_error', 'rad/s')}, "
                  f"{fmt('iae', 'rad')}, {fmt('peak_clutch_torque', 'N·m')}{status}",

@@ -23,7 +23,7 @@ def write_mcap(run, path, overwrite=False):
         check_target(path, overwrite)
         recorder = SimulationRecorder(
             path, parameters=dict(run.scenario.values), scene=str(sc.scene),
-            source=f"cvt-sim scenario run {sc.path} ({run.backend})", overwrite=overwrite,
+            source=f"cvt-sim scenario run {sc.path} ({run.backend_text})", overwrite=overwrite,
             extra_topics=[(SETPOINT_TOPIC, SETPOINT_TYPE, SETPOINT_QOS)],
             on_error=errors.append)
     except RecordingError as exc:

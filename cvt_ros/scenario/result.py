@@ -30,6 +30,12 @@ class ScenarioRun:
     wall_time: float = 0.0
     error: str = None
     exception: BaseException = None
+    realtime: float = None      # dds back end against the wall clock: its real-time factor
+
+    @property
+    def backend_text(self):
+        """The back end as a person reads it: 'dds, realtime 1x' for a wall-clock run."""
+        return self.backend if not self.realtime else f"{self.backend}, realtime {self.realtime:g}x"
 
     # ------------------------------------------------------------------ derived
     @property
@@ -124,6 +130,7 @@ class ScenarioRun:
         sc = self.scenario
         return clean({
             'scenario': str(sc.path), 'scene': str(sc.scene), 'backend': self.backend,
+            'realtime': self.realtime,
             'controller': self.controller, 'duration': sc.duration,
             'simulated': self.duration, 'control_period': sc.control_period, 'seed': sc.seed,
             'completed': self.ok, 'error': self.error,
@@ -157,7 +164,7 @@ class ScenarioRun:
 
     def summary_line(self):
         status = 'completed' if self.ok else f"STOPPED: {self.error}"
-        return (f"{self.scenario.name}: {self.backend}, {self.duration:g} s simulated in "
+        return (f"{self.scenario.name}: {self.backend_text}, {self.duration:g} s simulated in "
                 f"{self.wall_time:.3f} s ({self.real_time_factor:.3g}x real time), "
                 f"{len(self.switches)} clutch switches, {self.clamped} commands clamped; "
                 f"{status}")
