@@ -57,10 +57,14 @@ def test_foxglove_layout_uses_published_topics():
     panels = layout['configById']
     assert any(k.startswith('3D!') for k in panels)
     topics = {'/' + interface.JOINT_STATES, '/' + interface.CRANK_LENGTH_CMD, '/setpoint',
-              '/cvt_speed_controller/cycle_mean_speed', '/linkage_markers'}
+              '/cvt_speed_controller/cycle_mean_speed', '/cvt_speed_controller/setpoint',
+              '/linkage_markers'}
     for key, panel in panels.items():
         for path in panel.get('paths', []):
             assert path['value'].split('.')[0] in topics, (key, path['value'])
+            # one time axis live and in recordings: a recording's log time is simulation time,
+            # a live header stamp would be simulation time against the others' wall clock
+            assert path['timestampMethod'] == 'receiveTime', (key, path['value'])
     assert '/linkage_markers' in panels['3D!cvt_linkage']['topics']
 
     def leaves(node):

@@ -25,6 +25,8 @@ def node(tmp_path):
         Parameter('setpoint_file', value=str(tmp_path / 'sp.csv'))])
     n.sent = []
     n.crank_length_cmd_publisher.publish = lambda msg: n.sent.append(msg.data)
+    n.setpoints = []
+    n.setpoint_publisher.publish = lambda msg: n.setpoints.append(msg.data)
     yield n
     n.destroy_node()
     ctx.try_shutdown()
@@ -53,6 +55,7 @@ def drive(node, seconds):
 def test_one_command_per_sample_and_the_set_point_by_sim_time(node):
     drive(node, 0.3)
     assert len(node.sent) == 301                      # every sample answered (lockstep steps)
+    assert node.setpoints and set(node.setpoints) <= {55.0, 65.0}   # once per turn it acts
     assert node.setpoint_at(0.1) == 55.0 and node.setpoint_at(0.25) == 65.0
     msg = Float64()
     msg.data = 40.0

@@ -9,7 +9,8 @@ advances the device one control period. The set point [rad/s] comes from the par
 from its arrival on) or a set-point file (``setpoint_file``: CSV ``t,setpoint``, the value in
 force from each t on, read against the samples' simulation-time stamps — reproducible to the
 period, which is how ``cvt-sim scenario run --backend dds`` drives it). ``~/cycle_mean_speed``
-(Float64) publishes the law's measurement once per crank turn.
+and ``~/setpoint`` (Float64 [rad/s]) publish the law's measurement and the set point it
+follows once per crank turn, when it acts (the Foxglove layout plots them).
 
     cvt_speed_controller --ros-args -p setpoint:=60.0 -p kp:=2e-3 -p ki:=4e-3
     ros2 topic pub --once /speed_setpoint std_msgs/msg/Float64 "{data: 70.0}"
@@ -87,12 +88,14 @@ class SpeedControllerNode(Node):
         self.crank_length_cmd_publisher = self.create_publisher(
             Float64, interface.CRANK_LENGTH_CMD, interface.command_qos())
         self.cycle_mean_speed_publisher = self.create_publisher(Float64, '~/cycle_mean_speed', 10)
+        self.setpoint_publisher = self.create_publisher(Float64, '~/setpoint', 10)
         self.state_subscription = self.create_subscription(
             JointState, STATE_TOPIC, self.state_callback, LATCHED)
         self.speed_setpoint_subscription = self.create_subscription(
             Float64, SETPOINT_TOPIC, self.speed_setpoint_callback, LATCHED)
         self._command = Float64()
         self._speed = Float64()
+        self._setpoint = Float64()
 
     def _gains(self, changes=None):
         values = {f.name: float(self.get_parameter(f.name).value) for f in fields(SpeedPIGains)}
@@ -146,11 +149,13 @@ class SpeedControllerNode(Node):
         t = s.stamp_ns * 1e-9
         i = self._actuator_index
         crank = float(msg.position[i]) if i is not None else math.nan
-        a = self.law.update(t, s.position[0], s.position[3], crank, self.setpoint_at(t),
-                            s.effort[1] > 0.0)
+        setpoint = self.setpoint_at(t)
+        a = self.law.update(t, s.position[0], s.position[3], crank, setpoint, s.effort[1] > 0.0)
         if a is not None:
             self._speed.data = float(self.law.speed.value)
             self.cycle_mean_speed_publisher.publish(self._speed)
+            self._setpoint.data = float(setpoint)
+            self.setpoint_publisher.publish(self._setpoint)
         else:
             a = self.law.command if self.law.command is not None else crank
         if math.isfinite(a):
