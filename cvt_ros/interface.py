@@ -507,17 +507,20 @@ def decode_joint_state_cdr(data: bytes, order: Sequence[int] | None = None
 
 
 def joint_command_crank_length(data: bytes) -> float | None:
-    """The crank-length command [m] of joint_commands CDR bytes: the position of the entry named
-    ACTUATOR_JOINT (with any joint prefix); None when there is none or it is not finite (the
-    node refuses those)."""
+    """The crank-length command [m] of joint_commands CDR bytes, read as the node reads it: the
+    position of the entry named ACTUATOR_JOINT (with any joint prefix), or the one position of a
+    message that names more joints (TopicBasedSystem sends positions only for joints with a
+    position command interface); None when there is none or it is not finite (the node refuses
+    those)."""
     try:
         _, _, names, position, _, _ = _parse_joint_state(data)
     except ValueError:
         return None
-    for name, value in zip(names, position, strict=False):
-        if name.endswith(ACTUATOR_JOINT):
-            return value if math.isfinite(value) else None
-    return None
+    hits = [i for i, name in enumerate(names) if name.endswith(ACTUATOR_JOINT)]
+    if not hits or not position or (len(position) != len(names) and len(position) != 1):
+        return None
+    value = position[hits[0]] if len(position) == len(names) else position[0]
+    return value if math.isfinite(value) else None
 
 
 def _parse_joint_state(data: bytes) -> tuple[int, str, list[str], tuple, tuple, tuple]:

@@ -446,6 +446,16 @@ def test_joint_commands_are_crank_length_commands(tmp_path):
     path = tmp_path / 'r2c.mcap'
     record_node_like(path, 2000, {500: ('joint_commands', 0.04)})
     (step,) = analyze_trace(load(str(path))[0][0]).steps
+    from rclpy.serialization import serialize_message
+    from sensor_msgs.msg import JointState
+
+    from cvt_ros.interface import joint_command_crank_length
+    for names, positions, value in ((['crank', 'crank_length'], [0.0, 0.05], 0.05),
+                                    (['crank', 'crank_length'], [0.05], 0.05),  # TopicBasedSystem
+                                    (['crank', 'crank_length', 'x'], [0.0, 0.05], None),
+                                    (['crank'], [0.05], None)):
+        data = serialize_message(JointState(name=names, position=positions))
+        assert joint_command_crank_length(data) == value, names
     assert (step.command.key, step.command.value, step.previous) == ('crank_length_cmd', 0.04,
                                                                      0.03)
     assert step.command.t == pytest.approx(0.5)

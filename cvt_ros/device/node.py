@@ -332,10 +332,21 @@ class CvtSimNode(Node):
             raise CommandError('joint_commands', f"names [{shown}]",
                                f"no joint {name!r} (its position is the crank-length command "
                                f"[m])") from None
-        if i >= len(msg.position):
-            raise CommandError('joint_commands', f"{len(msg.position)} positions",
+        if not msg.position:
+            raise CommandError('joint_commands', '0 positions',
                                f"no position for joint {name!r} (entry {i})")
-        value = float(msg.position[i])
+        if len(msg.position) == len(msg.name):
+            value = float(msg.position[i])
+        elif len(msg.position) == 1:
+            # TopicBasedSystem names every joint but sends positions only for the joints with a
+            # position command interface: here crank_length alone
+            value = float(msg.position[0])
+        else:
+            raise CommandError('joint_commands', f"{len(msg.position)} positions for "
+                               f"{len(msg.name)} names",
+                               f"which one is joint {name!r}'s? (one position per name, or "
+                               f"one position: {name!r}'s, as TopicBasedSystem sends it when "
+                               f"only {name!r} has a position command interface)")
         self.device.check_crank_length(value, f'joint_commands {name}')
         return value
 
