@@ -84,8 +84,11 @@ def plot_run(run, path):
     status = '' if run.ok else f"\nSTOPPED: {run.error}"
     fig.suptitle(f"{run.scenario.name} — {run.backend_text}, {run.controller}\n"
                  f"{fmt('rise_time', 's')}, {fmt('overshoot', '%')}, "
-                 f"{fmt('settling_time', 's')}, {fmt('steady_state_error', 'rad/s')}, "
-                 f"{fmt('iae', 'rad')}, {fmt('peak_clutch_torque', 'N·m')}{status}",
+                 f"{fmt('settling_time', 's')}, {fmt('steady_state_error', 'rad/s')}\n"
+                 + (f"{fmt('max_deviation', 'rad/s')} (load steps), "
+                    if math.isfinite(m.get('max_deviation', math.nan)) else '')
+                 + f"{fmt('iae', 'rad')}, {fmt('peak_clutch_torque', 'N·m')} (whole run)"
+                 f"{status}",
                  fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
