@@ -9,7 +9,9 @@ from rosbags.highlevel import AnyReader
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
+from cvt_ros.analysis.bag import load_mcap
 from cvt_ros.recording import read_messages, recover
+from cvt_ros.recording import summary as summary_of
 
 
 def run_node(tmp_path, stop_signal, commands=True, linger=0.0):
@@ -29,6 +31,9 @@ def run_node(tmp_path, stop_signal, commands=True, linger=0.0):
                 assert wait_for(lambda: crank.get_subscription_count() > 0, 10.0)
                 crank.publish(Float64(data=0.05))
                 crank.publish(Float64(data=float('nan')))   # refused, but still recorded
+                crank.publish(Float64(data=0.2))            # beyond Grashof: refused too
+                result = probe.set_parameters('/cvt_sim', **{'load.torque': 9.0})[0]
+                assert result.successful, result.reason
             assert wait_for(lambda: len(joints) > 2500, 60.0), proc.output()
             last = joints.last()
             mark = last.header.stamp.sec * 10**9 + last.header.stamp.nanosec
@@ -55,7 +60,7 @@ def test_sigint_leaves_a_complete_bag_that_independent_readers_accept(tmp_path):
                   ((summary.channels[cid], n)
                    for cid, n in summary.statistics.channel_message_counts.items())}
         assert counts['/joint_states'] > 2000
-        assert counts['/crank_length_cmd'] == 2
+        assert counts['/crank_length_cmd'] == 3
     with AnyReader([path]) as reader:
         stamps = []
         for conn, log_ns, raw in reader.messages(
@@ -66,6 +71,15 @@ def test_sigint_leaves_a_complete_bag_that_independent_readers_accept(tmp_path):
             assert list(msg.name) == ['crank', 'rocker', 'clutch_output', 'output_shaft',
                                       'crank_length']
     assert all(b - a == 1_000_000 for a, b in zip(stamps, stamps[1:], strict=False))
+    # the live change is in the recording (a metadata record at its simulation time), and the
+    # analysis takes it as the load command it is; the refused commands are left out
+    changes = [m for name, m in summary_of(path).metadata_records
+               if name == 'cvt_ros.parameter_change']
+    assert len(changes) == 1 and 'load.torque: 9.0' in changes[0]['parameters'], changes
+    (trace,), _ = load_mcap(str(path))
+    assert sorted((c.key, c.value) for c in trace.commands) == [('crank_length_cmd', 0.05),
+                                                               ('load_torque_cmd', 9.0)]
+    assert any('1 command(s) outside the node' in note for note in trace.notes), trace.notes
     switches = [m for m in read_messages(path, ['/clutch_engaged'])]
     assert len(switches) > 10
     values = [m.message().data for m in switches]

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from .. import interface as I
+from ..physics.linkage import grashof_bound
 from .errors import AnalysisError
 from .trace import Command, RecordingInfo, Trace
 
@@ -277,8 +278,8 @@ def load_mcap(path: str, *, namespace: str | None = None
                        vel[good], eff[good], crank[good])
     changes = []
     if ours:
-        for name, record in bag.metadata.items():
-            if name == PARAMETER_CHANGE_NAME:  # summary keeps one per name: the last
+        for name, record in bag.metadata_records:   # one record per live change
+            if name == PARAMETER_CHANGE_NAME:
                 change = _yaml(record.get('parameters', ''))
                 try:
                     changes.append((int(record.get('time_ns', 0)),
@@ -318,6 +319,34 @@ class _Samples:
     def take(self, keep: np.ndarray) -> _Samples:
         return _Samples(self.stamps[keep], self.log[keep], self.pos[keep], self.vel[keep],
                         self.eff[keep], self.crank[keep])
+
+
+#: live parameter changes that act as a command does (analysis: a step like the command's)
+LIVE_COMMANDS = {'load.torque': 'load_torque_cmd', 'linkage.crank_length': 'crank_length_cmd'}
+
+
+def _finite(value: Any) -> float | None:
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        return None
+    return value if math.isfinite(value) else None
+
+
+def _refused(key: str, value: float, params: dict | None) -> bool:
+    """Whether the node refused this command, by its own checks on the parameters in force
+    (a crank length outside [0, Grashof bound), a load beyond limits.load_torque); False when
+    the recording has no parameters."""
+    if not params:
+        return False
+    try:
+        if key == 'crank_length_cmd':
+            return not 0.0 <= value < grashof_bound(float(params['linkage.rocker_length']),
+                                                    float(params['linkage.coupler_length']),
+                                                    float(params['linkage.pivot_distance']))
+        return abs(value) > float(params['limits.load_torque'])
+    except (KeyError, TypeError, ValueError):
+        return False
 
 
 def _split_runs(path: str, samples: _Samples, events: list, parameters: dict | None,
@@ -360,12 +389,31 @@ def _split_runs(path: str, samples: _Samples, events: list, parameters: dict | N
                 break
         switch_t, switch_on, commands = [], [], []
         run_log = samples.log[lo:hi]
+        # the parameters in force at the run's start: the scene's and every live change logged
+        # before it (a reset keeps them); a change of the load or the crank inside the run acts
+        # as that command does
+        in_force = dict(parameters) if parameters else parameters
+        inside = []
+        for ns, change in changes:
+            if ns < first_log:
+                if in_force is not None:
+                    in_force.update(change)
+            elif next_log is None or ns < next_log:
+                inside.append((ns, change))
+                for name, key in LIVE_COMMANDS.items():
+                    value = _finite(change.get(name))
+                    if value is not None:
+                        commands.append(Command(float(np.interp(ns, run_log, t)), key, value))
+        refused = 0
         for key, lt, pt, data in events[start:max(start, stop)]:
             if key == 'joint_commands':   # topic_based_ros2_control's crank-length command
                 key, value = 'crank_length_cmd', I.joint_command_crank_length(data)
             else:
                 value = _event_value(key, data)
             if value is None:
+                continue
+            if key != 'clutch_engaged' and _refused(key, value, in_force):
+                refused += 1   # recorded as received; the node did not apply it
                 continue
             if ours:
                 ts = pt * 1e-9  # our recorder keeps the simulation time in publish_time
@@ -386,6 +434,9 @@ def _split_runs(path: str, samples: _Samples, events: list, parameters: dict | N
             initial = bool(switch_on_arr[head][-1])
             switch_t_arr, switch_on_arr = switch_t_arr[~head], switch_on_arr[~head]
         notes = []
+        if refused:
+            notes.append(f'{refused} command(s) outside the node\'s limits (refused by it) left '
+                         f'out')
         if initial is None and len(switch_on_arr):
             initial = not switch_on_arr[0]
             notes.append('initial clutch state inferred from the first switch')
@@ -396,9 +447,8 @@ def _split_runs(path: str, samples: _Samples, events: list, parameters: dict | N
         trace = Trace(path, 'mcap', t, pos_r, samples.vel[lo:hi], samples.eff[lo:hi],
                       pos_r[:, 2] - pos_r[:, 3], crank.copy(), switch_t_arr,
                       switch_on_arr, initial, ours, sorted(commands, key=lambda c: c.t),
-                      parameters, 'recording' if parameters else '',
-                      [(ns * 1e-9, ch) for ns, ch in changes if first_log <= ns
-                       and (next_log is None or ns < next_log)],
+                      in_force, 'recording' if parameters else '',
+                      [(ns * 1e-9, ch) for ns, ch in inside],
                       info.scene, len(traces), notes,
                       'recorded' if np.any(np.isfinite(crank)) else '')
         traces.append(trace)

@@ -98,7 +98,8 @@ class RunLoop:
     ``publish_switch(event)``, ``publish_present(period)`` (latched clutch state and sample),
     ``wait_commands(timeout_s)`` (wait up to
     ``timeout_s`` for command messages or ``wake()``; hand each to its callback, which calls
-    ``command``), ``wake()``, ``recording_reset()``, ``ok()`` (the ROS context is up).
+    ``command``), ``wake()``, ``recording_reset()``, ``recording_parameters(changes, t)`` (live
+    changes taken at simulation time t), ``ok()`` (the ROS context is up).
     ``logger``: warning / error / info.
 
     ``settings``: time_mode, real_time_factor, steps_per_command, step_periods,
@@ -425,6 +426,8 @@ class RunLoop:
                 device.update_parameters(entry[1])
             except (ParameterError, GrashofError) as exc:
                 self.logger.error(f"parameter change not applied: {exc}")
+            else:   # the recording says what changed and when: analysis reads the rest with it
+                self.port.recording_parameters(entry[1], device.t)
             self.take_snapshot(time.monotonic_ns())
         elif kind == 'reset':
             self._reset()

@@ -505,6 +505,11 @@ class CvtSimNode(Node):
         if self._recorder is not None:
             self._recorder.mark_reset()
 
+    def recording_parameters(self, changes, t):
+        """Live parameter changes taken at simulation time ``t`` [s], into the recording."""
+        if self._recorder is not None:
+            self._recorder.record_parameters(changes, t)
+
     # ------------------------------------------------------------------ recording hook
     def recorded_topics(self):
         """(resolved topic name, message type, QoS profile) of everything the node publishes or

@@ -90,7 +90,9 @@ class BagSummary:
     """What :func:`summary` found. Times in int64 ns; ``None`` if there are no messages.
 
     ``complete`` is True when the file ends with a valid footer; ``problems`` lists what was
-    wrong otherwise (empty for a good file).
+    wrong otherwise (empty for a good file). ``metadata``: the last record of each name;
+    ``metadata_records``: every metadata record as (name, map), in file order (a name may
+    repeat: one ``cvt_ros.parameter_change`` per live change).
     """
 
     path: str
@@ -103,6 +105,7 @@ class BagSummary:
     metadata: dict[str, dict[str, str]]
     complete: bool
     problems: tuple[str, ...] = ()
+    metadata_records: tuple[tuple[str, dict[str, str]], ...] = ()
 
     @property
     def duration_ns(self) -> int:
@@ -547,11 +550,12 @@ def _summary_from_index(path: str) -> BagSummary | None:
                 channel.topic, schema.name if schema else '', count, channel.message_encoding,
                 channel.metadata.get('offered_qos_profiles', ''),
                 channel.metadata.get('topic_type_hash', ''))
-        metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+        records = tuple((m.name, dict(m.metadata)) for m in reader.iter_metadata())
     empty = stats.message_count == 0
     return BagSummary(path, header.profile, header.library, stats.message_count,
                       None if empty else stats.message_start_time,
-                      None if empty else stats.message_end_time, topics, metadata, True)
+                      None if empty else stats.message_end_time, topics, dict(records), True,
+                      metadata_records=records)
 
 
 def summary(path: str | os.PathLike[str]) -> BagSummary:
@@ -592,8 +596,9 @@ def summary(path: str | os.PathLike[str]) -> BagSummary:
             channel.topic, _schema_name(scan, channel), count, channel.message_encoding,
             channel.metadata.get('offered_qos_profiles', ''),
             channel.metadata.get('topic_type_hash', ''))
-    metadata = {m.name: dict(m.metadata) for m in scan.metadata}
+    records = tuple((m.name, dict(m.metadata)) for m in scan.metadata)
     error = scan.error(sum(counts.values()))
     return BagSummary(scan.path, scan.header.profile, scan.header.library, sum(counts.values()),
-                      start, end, topics, metadata, scan.complete and not scan.problems,
-                      tuple(error.problems) if error is not None else ())
+                      start, end, topics, dict(records), scan.complete and not scan.problems,
+                      tuple(error.problems) if error is not None else (),
+                      metadata_records=records)
