@@ -41,8 +41,8 @@ __all__ = [
     'POSITION_COLUMNS', 'VELOCITY_COLUMNS', 'EFFORT_COLUMNS',
     'bool_cdr', 'clock_cdr', 'clock_msg', 'clock_qos', 'clutch_msg', 'clutch_qos',
     'command_msg', 'command_qos', 'decode_joint_state', 'decode_joint_state_cdr',
-    'diagnostics_qos', 'float64_cdr', 'joint_command_crank_length', 'joint_order',
-    'joint_state_cdr', 'joint_state_from_row', 'joint_state_stamp_ns',
+    'diagnostics_qos', 'float64_cdr', 'joint_command_crank_length', 'joint_command_position',
+    'joint_order', 'joint_state_cdr', 'joint_state_from_row', 'joint_state_stamp_ns',
     'joint_states_qos', 'qos_profile', 'resolve_topic', 'resolved_topics', 'set_stamp',
     'stamp_ns', 'time_to_ns', 'topic_key',
 ]
@@ -506,20 +506,35 @@ def decode_joint_state_cdr(data: bytes, order: Sequence[int] | None = None
     return values, names
 
 
+def joint_command_position(names: Sequence[str], positions: Sequence[float], index: int
+                           ) -> float:
+    """The position a joint_commands message gives the joint ``names[index]``: its own entry
+    when there is one position per name, the only one when there is one (TopicBasedSystem names
+    every joint but sends positions only for those with a position command interface: here
+    crank_length alone). ValueError(what, reason) otherwise."""
+    name = names[index]
+    if not positions:
+        raise ValueError('0 positions', f"no position for joint {name!r} (entry {index})")
+    if len(positions) == len(names):
+        return float(positions[index])
+    if len(positions) == 1:
+        return float(positions[0])
+    raise ValueError(f"{len(positions)} positions for {len(names)} names",
+                     f"which one is joint {name!r}'s? (one position per name, or one position: "
+                     f"{name!r}'s, as TopicBasedSystem sends it when only {name!r} has a "
+                     f"position command interface)")
+
+
 def joint_command_crank_length(data: bytes) -> float | None:
-    """The crank-length command [m] of joint_commands CDR bytes, read as the node reads it: the
-    position of the entry named ACTUATOR_JOINT (with any joint prefix), or the one position of a
-    message that names more joints (TopicBasedSystem sends positions only for joints with a
-    position command interface); None when there is none or it is not finite (the node refuses
-    those)."""
+    """The crank-length command [m] of joint_commands CDR bytes, read as the node reads it
+    (:func:`joint_command_position` of the entry named ACTUATOR_JOINT, with any joint prefix);
+    None when there is none or it is not finite (the node refuses those)."""
     try:
-        _, _, names, position, _, _ = _parse_joint_state(data)
-    except ValueError:
+        _, _, names, positions, _, _ = _parse_joint_state(data)
+        index = next(i for i, name in enumerate(names) if name.endswith(ACTUATOR_JOINT))
+        value = joint_command_position(names, positions, index)
+    except (ValueError, StopIteration):
         return None
-    hits = [i for i, name in enumerate(names) if name.endswith(ACTUATOR_JOINT)]
-    if not hits or not position or (len(position) != len(names) and len(position) != 1):
-        return None
-    value = position[hits[0]] if len(position) == len(names) else position[0]
     return value if math.isfinite(value) else None
 
 

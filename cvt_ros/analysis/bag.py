@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from .. import interface as I
-from ..physics.linkage import grashof_bound
+from ..physics.linkage import GrashofError, check_crank_length
 from .errors import AnalysisError
 from .trace import Command, RecordingInfo, Trace
 
@@ -334,17 +334,20 @@ def _finite(value: Any) -> float | None:
 
 
 def _refused(key: str, value: float, params: dict | None) -> bool:
-    """Whether the node refused this command, by its own checks on the parameters in force
-    (a crank length outside [0, Grashof bound), a load beyond limits.load_torque); False when
-    the recording has no parameters."""
+    """Whether the node refused this command, by the checks it makes on the parameters in force
+    (a crank length outside [0, Grashof bound): physics.linkage.check_crank_length; a load
+    beyond limits.load_torque); False when the recording has no parameters."""
     if not params:
         return False
     try:
         if key == 'crank_length_cmd':
-            return not 0.0 <= value < grashof_bound(float(params['linkage.rocker_length']),
-                                                    float(params['linkage.coupler_length']),
-                                                    float(params['linkage.pivot_distance']))
+            check_crank_length(value, float(params['linkage.rocker_length']),
+                               float(params['linkage.coupler_length']),
+                               float(params['linkage.pivot_distance']))
+            return False
         return abs(value) > float(params['limits.load_torque'])
+    except GrashofError:
+        return True
     except (KeyError, TypeError, ValueError):
         return False
 

@@ -140,7 +140,7 @@ def step_responses(trace: Trace, cy: CycleTable, *, tolerance: float = TOLERANCE
             continue   # a command stream's, or too close to the end to answer
         ended = int(np.searchsorted(cy.t_end, cmd.t, 'right'))   # cycles over by the command
         before = np.arange(max(0, ended - CYCLES_BEFORE), ended)
-        after = np.arange(first, max(first, stop))
+        after = np.arange(first, stop)
         rb = float(np.mean(ratio[before])) if len(before) else math.nan
         sb = float(np.mean(speed[before])) if len(before) else math.nan
         steady = None

@@ -332,21 +332,10 @@ class CvtSimNode(Node):
             raise CommandError('joint_commands', f"names [{shown}]",
                                f"no joint {name!r} (its position is the crank-length command "
                                f"[m])") from None
-        if not msg.position:
-            raise CommandError('joint_commands', '0 positions',
-                               f"no position for joint {name!r} (entry {i})")
-        if len(msg.position) == len(msg.name):
-            value = float(msg.position[i])
-        elif len(msg.position) == 1:
-            # TopicBasedSystem names every joint but sends positions only for the joints with a
-            # position command interface: here crank_length alone
-            value = float(msg.position[0])
-        else:
-            raise CommandError('joint_commands', f"{len(msg.position)} positions for "
-                               f"{len(msg.name)} names",
-                               f"which one is joint {name!r}'s? (one position per name, or "
-                               f"one position: {name!r}'s, as TopicBasedSystem sends it when "
-                               f"only {name!r} has a position command interface)")
+        try:
+            value = interface.joint_command_position(msg.name, msg.position, i)
+        except ValueError as exc:
+            raise CommandError('joint_commands', *exc.args) from None
         self.device.check_crank_length(value, f'joint_commands {name}')
         return value
 
