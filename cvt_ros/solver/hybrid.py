@@ -440,6 +440,11 @@ def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, 
         if mode == ENGAGED:
             value = g1  # the release guard where the switch was placed (≈ 0 unless late)
             # (the twist rule's guard already asks whether the clutch can open: s'_free ≥ 0)
+            # The step to the event integrated ω3 on its own; the state there is still an
+            # engaged one, so ω3 = v first: else the open clutch starts with the step's
+            # truncation error as slip (RK4 at 1 ms: −6e-6 rad/s, below its band) and 'engages'
+            # by impact at once, pulling until the next step's end
+            project(t, y, ENGAGED, P, ACT)
             ev_kind = KIND_RELEASE
             mode = DISENGAGED
             if P[P_J3] == 0.0 and P[P_KD] == 0.0 and P[P_RIGID] == 0.0:
