@@ -2,24 +2,17 @@
 read back by two independent readers; SIGINT finalizes the file, SIGKILL loses nothing already
 on disk (chunks close at least every 0.5 s: test_recording.test_idle_data_is_flushed_by_time)."""
 import signal
-import warnings
 
 from mcap.reader import make_reader
 from node_harness import NodeProcess, Probe, domain_id, wait_for
+from recording_helpers import wait_on_disk
 from rosbags.highlevel import AnyReader
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
 from cvt_ros.analysis.bag import load_mcap
-from cvt_ros.recording import RecordingReadWarning, read_messages, recover
+from cvt_ros.recording import read_messages, recover
 from cvt_ros.recording import summary as summary_of
-
-
-def stamps_on_disk(path, topic='/joint_states'):
-    """Log times [ns] of ``topic`` in the complete chunks of a file still being written."""
-    with warnings.catch_warnings():
-        warnings.simplefilter('ignore', RecordingReadWarning)
-        return [m.log_time_ns for m in read_messages(path, [topic], strict=False)]
 
 
 def run_node(tmp_path, stop_signal, commands=True, until_on_disk=False):
@@ -48,7 +41,9 @@ def run_node(tmp_path, stop_signal, commands=True, until_on_disk=False):
             last = joints.last()
             mark = last.header.stamp.sec * 10**9 + last.header.stamp.nanosec
             if until_on_disk:   # the node keeps running and recording meanwhile
-                assert wait_for(lambda: mark in stamps_on_disk(path), 120.0, interval=0.2), (
+                written = wait_on_disk(path, '/joint_states', lambda messages: messages and
+                                       messages[-1].log_time_ns >= mark)
+                assert written and written[-1].log_time_ns >= mark, (
                     f'sample {mark} ns not on disk after 120 s', proc.output())
         finally:
             probe.close()

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from recording_helpers import child_env, progress_until
+from recording_helpers import child_env, on_disk, progress_until, wait_on_disk
 
 # The ROS 2 wheels install share/<pkg> into the venv; ament_index looks there (the Makefile sets
 # this too).
@@ -746,12 +746,6 @@ def _start(code: str, *args: object) -> subprocess.Popen:
     return proc
 
 
-def _counts_on_disk(path: Path) -> list[float]:
-    with warnings.catch_warnings():
-        warnings.simplefilter('ignore', RecordingReadWarning)
-        return [m.message().data for m in read_messages(path, ['/count'], strict=False)]
-
-
 def test_sigkill_loses_nothing_already_on_disk(tmp_path: Path) -> None:
     path = tmp_path / 'killed.mcap'
     proc = _start(CRASH_CHILD, path)
@@ -761,9 +755,7 @@ def test_sigkill_loses_nothing_already_on_disk(tmp_path: Path) -> None:
     progress = progress_until(proc, lambda first, last: last[0] >= 1500 and
                               last[1] - first[1] >= 2_000_000_000)
     must_have = progress[-1][0] + 1
-    deadline = time.monotonic() + 120
-    while len(_counts_on_disk(path)) < must_have and time.monotonic() < deadline:
-        time.sleep(0.1)
+    wait_on_disk(path, '/count', lambda messages: len(messages) >= must_have)
     proc.kill()
     out, _ = proc.communicate(timeout=10)
     assert proc.returncode == -signal.SIGKILL
@@ -771,7 +763,7 @@ def test_sigkill_loses_nothing_already_on_disk(tmp_path: Path) -> None:
     assert progress and progress[-1][0] >= 1500, progress[-3:]
     got, error = _read_all(path)
     assert error is not None and 'not finished' in str(error)
-    counts = _counts_on_disk(path)
+    counts = [m.message().data for m in on_disk(path, '/count')]
     assert counts == [float(i) for i in range(len(counts))]
     assert len(counts) >= must_have, f'{must_have} messages not on disk after 120 s'
     fixed = tmp_path / 'recovered.mcap'
