@@ -3,11 +3,13 @@
 period, load changes, clutch events, the whole-turn rebase of the angles, every fidelity — and
 the Device built on it equals the offline core driven with the same commands."""
 import math
+import time
 
 import numpy as np
 import pytest
 
 from cvt_ros.device.core import Device
+from cvt_ros.device.diagnostics import Reporter, Stats
 from cvt_ros.scene import load_scene
 from cvt_ros.solver.fidelity import make_simulator
 from cvt_ros.solver.period import PeriodStepper
@@ -111,3 +113,28 @@ def test_a_copied_simulator_steps_on_from_its_own_state(copy_with):
         sim.command_crank_length(0.04 + 1e-4 * math.sin(k / 30))
         twin.command_crank_length(0.04 + 1e-4 * math.sin(k / 30))
         assert np.array_equal(stepper.advance(), twin_stepper.advance()), k
+
+
+def test_diagnostics_report_one_snapshot_of_the_simulation():
+    """sim_time and samples_published come from the same snapshot (the loop takes one every
+    0.25 s): a report made after more periods ran still pairs t = 0.1 s with its 100 samples;
+    the deadline and command counters are live."""
+    device = Device(load_scene('paper'), DT)
+    stats = Stats()
+    for _ in range(100):
+        row = device.advance().row
+        stats.samples += 1
+    snap = dict(device.snapshot(row), wall_ns=time.monotonic_ns(), samples=stats.samples,
+                resets=0)
+    for _ in range(50):   # the loop goes on; the next snapshot is not due yet
+        device.advance()
+        stats.samples += 1
+    stats.missed = 3
+    settings = {'mode': 'realtime', 'state': 'realtime', 'real_time_factor': 1.0,
+                'publish_rate': 1000.0, 'control_period': DT, 'fault': None, 'policy': 'p'}
+    level, message, values = Reporter().report(snap, stats, device.step_ns, settings)
+    values = dict(values)
+    assert float(values['sim_time']) == pytest.approx(0.1)
+    assert values['samples_published'] == '100'
+    assert values['missed_deadlines'] == '3'
+    assert float(values['crank_length_m']) == pytest.approx(device.sim.crank_length)

@@ -87,7 +87,7 @@ class Reporter:
             ('publish_rate_target', f"{settings['publish_rate'] * settings['real_time_factor']:g}"
                                     if realtime else '-'),
             ('control_period', f"{settings['control_period']:.9g}"),
-            ('samples_published', str(stats.samples)),
+            ('samples_published', str(snap['samples'])),   # with sim_time: one snapshot
             ('missed_deadlines', str(stats.missed)),
             ('missed_deadlines_last_window', str(window_missed)),
             ('lag_ms', f"{stats.lag_ns / 1e6:.3f}"),
