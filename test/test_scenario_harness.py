@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cvt_ros.analysis.cycles import cycle_metrics
 from cvt_ros.recording.reader import summary
 from cvt_ros.scenario import HarnessError, load_scenario, run_scenario
 from cvt_ros.scenario.recording import write_mcap
@@ -44,6 +45,16 @@ def test_reference_controller_follows_set_point_steps():
         assert s['overshoot'] < 2.0
         assert s['settling_time'] < 5.0
         assert abs(s['steady_state_error']) < 0.2
+    # the band a settling time is judged by (drawn in the plot): the final set point ± 2 % of
+    # the change from the speed before the step (54.1 rad/s at 2 s, not quite 55); every
+    # cycle-mean speed after the settling time stays inside it
+    table = cycle_metrics(run.trace())[0]
+    for s, target, was in ((up, 70.0, 55.0), (down, 45.0, 70.0)):
+        assert s['settling_target'] == target
+        assert s['settling_band'] == pytest.approx(0.02 * abs(target - was), rel=0.1)
+        after = (table['t_start'] >= s['t'] + s['settling_time']) & (table.t_end <= s['window_end'])
+        assert after.sum() > 10
+        assert np.all(np.abs(table['output_speed'][after] - target) <= s['settling_band'])
     # the crank goes where the plant's gain (~1.46 rad/s per mm) says
     a = run.column('crank_length')
     k_up, k_end = int(7.9 / 1e-3), len(a) - 1

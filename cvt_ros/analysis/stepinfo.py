@@ -76,7 +76,9 @@ def step_metrics(trace: Trace, reference_t: np.ndarray, reference: np.ndarray,
     """The metrics of each step in ``events`` (time order) for one run.
 
     ``reference_t``, ``reference``: the set point on a time grid (the control periods).
-    Returns one dict per event: its time, kind, before/after values, window end and METRICS.
+    Returns one dict per event: its time, kind, before/after values, window end, METRICS and,
+    where a settling time applies, the band it is judged by: ``settling_target`` ± ``settling_band``
+    [rad/s].
     """
     table = cycle_metrics(trace)[0]
     t_start = table['t_start']
@@ -139,6 +141,7 @@ def _window(trace, tm, t_start, t_end, y, r_mid, ref_t, ref, a, tc, ev, t_e):
         m['rise_time'] = t90 - t10
         m['overshoot'] = float(max(0.0, np.max((yw - rf) * sign)) / abs(delta) * 100.0)
     if scale > 0:
+        m['settling_target'], m['settling_band'] = rf, SETTLING_BAND * scale   # for plots
         outside = np.flatnonzero(np.abs(yw - rf) > SETTLING_BAND * scale)
         if not len(outside):
             m['settling_time'] = 0.0

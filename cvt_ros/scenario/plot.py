@@ -20,6 +20,23 @@ def _envelope(t, y, points=MAX_POINTS):
     return np.repeat(tt, 2), np.column_stack([yy.min(axis=1), yy.max(axis=1)]).ravel()
 
 
+def _settling_bands(ax, steps):
+    """Each step's settling band (its final set point ± 2 % of the change, or of the speed for a
+    load step) over its window, and where it settled: what settling_time was judged by."""
+    label = 'settling band ±2 % (|: settled)'
+    for s in steps:
+        band = s.get('settling_band', math.nan)
+        if not math.isfinite(band):
+            continue
+        target = s['settling_target']
+        ax.fill_between([s['t'], s['window_end']], target - band, target + band, color='C2',
+                        alpha=0.3, lw=0, label=label)
+        if math.isfinite(s['settling_time']):
+            ax.plot([s['t'] + s['settling_time']], [target], marker='|', ms=14, mew=1.5,
+                    color='C2', label='_nolegend_')
+        label = None
+
+
 def plot_run(run, path):
     """Write the PNG of ``run`` (a ScenarioRun) to ``path``; returns ``path``."""
     import matplotlib
@@ -37,6 +54,7 @@ def plot_run(run, path):
         tm = table['t_start'] + 0.5 * table['period']
         ax.plot(tm, table['output_speed'], color='C0', lw=1.8, label='ω4, mean per crank turn')
     ax.step(t, run.setpoint, where='post', color='C3', ls='--', lw=1.3, label='set point')
+    _settling_bands(ax, run.steps)
     ax.set_ylabel('output speed [rad/s]')
     ax.legend(loc='best', fontsize=8)
 
