@@ -14,6 +14,7 @@ import struct
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 import warnings
 from pathlib import Path
@@ -853,3 +854,51 @@ def test_exit_without_finish_still_completes_file(tmp_path: Path, ending: str) -
     info = summary(path)  # the atexit hook finished the file
     assert info.complete and info.message_count == 500
     assert [m.message().data for m in read_messages(path)] == [float(i) for i in range(500)]
+
+
+@pytest.mark.parametrize('interrupted', ['write', 'finish'])
+def test_finish_from_a_handler_anywhere_inside_write_cannot_deadlock(tmp_path: Path,
+                                                                     interrupted: str) -> None:
+    """Python runs a signal handler between any two bytecodes of the main thread, so a handler
+    that calls finish() may land anywhere inside write(), its wake-up of the writer thread
+    included, or inside a finish() under way. (That wake-up was a threading.Event, whose set()
+    holds a plain lock: finish() waking the thread again from inside it hung the process, once
+    in a CI run.) The handler is simulated here at every line the call executes, by a tracer,
+    in a thread of its own."""
+    def interrupted_at(k: int, path: Path) -> int:
+        writer = BagWriter(path, chunk_size=1, flush_interval=None)   # every write wakes it
+        writer.add_topic('/x', Float64)
+        writer.write('/x', Float64(data=0.0), 1)
+        lines = 0
+
+        def handler_at_line_k(frame, event, arg):
+            nonlocal lines
+            if event == 'line':
+                lines += 1
+                if lines == k:
+                    sys.settrace(None)
+                    writer.finish()
+            return handler_at_line_k
+        sys.settrace(handler_at_line_k)
+        if interrupted == 'write':
+            writer.write('/x', Float64(data=1.0), 2)
+        else:
+            writer.finish()
+        sys.settrace(None)
+        writer.finish()
+        return lines
+
+    k = 1
+    while True:
+        result: list[int] = []
+        path = tmp_path / f'at_{k}.mcap'
+        thread = threading.Thread(target=lambda k=k, path=path, result=result:
+                                  result.append(interrupted_at(k, path)), daemon=True)
+        thread.start()
+        thread.join(30)
+        assert not thread.is_alive(), f'finish() at line {k} of {interrupted}() never returned'
+        assert summary(path).complete
+        if result[0] < k:   # the call has fewer lines: every one was tried
+            break
+        k += 1
+    assert k > 5

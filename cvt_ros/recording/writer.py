@@ -30,6 +30,7 @@ from __future__ import annotations
 import atexit
 import errno
 import os
+import queue
 import threading
 import time
 import weakref
@@ -55,6 +56,7 @@ ROS_DISTRO = 'jazzy'
 
 _OPEN, _CLOSED, _FAILED = 'open', 'closed', 'failed'
 _RECORD_OVERHEAD = 31  # opcode + length + message header bytes (9 + 22)
+_DONE_POLL_S = 0.002   # finish() looks this often whether the writer thread is done
 # Queue commands (first tuple element).
 _MSG, _SCHEMA, _CHANNEL, _METADATA, _FLUSH, _FINISH = range(6)
 
@@ -116,7 +118,7 @@ class BagWriter:
         # Producer side (any thread), guarded by _lock.
         self._lock = threading.RLock()
         self._queue: deque[tuple] = deque()  # append/popleft are atomic: no lock for the thread
-        self._wake = threading.Event()
+        self._wake = _Wake()
         self._done = threading.Event()  # set when the writer thread has exited
         self._state = _OPEN
         self._finish_requested = False
@@ -275,10 +277,13 @@ class BagWriter:
         """
         with self._lock:
             if not self._finish_requested and self._state == _OPEN:
-                self._finish_requested = True
+                # queued before it is marked: a handler landing in between queues its own
+                # (a second FINISH is never read) instead of waiting for one never queued
                 self._queue.append((_FINISH,))
+                self._finish_requested = True
                 self._wake.set()
-        self._done.wait()
+        while not self._done.is_set():   # polled: Event.wait() holds a plain lock a handler
+            time.sleep(_DONE_POLL_S)     # landing inside it would wait on forever
         atexit.unregister(self._atexit)
         self._raise_unreported()
 
@@ -423,7 +428,6 @@ class BagWriter:
         try:
             while self._state == _OPEN:
                 self._wake.wait(self._poll)
-                self._wake.clear()
                 self._process()
         except Exception as exc:  # noqa: BLE001 - any failure stops the recording, reported once
             self._fail(exc)
@@ -508,6 +512,32 @@ class BagWriter:
             self._file.close()  # closes the descriptor even if flushing the buffer fails
         except (OSError, ValueError):
             pass
+
+
+class _Wake:
+    """Wakes the writer thread; any thread, and a signal handler, may call :meth:`set`.
+
+    Not a threading.Event: its set() holds a plain lock, and a signal handler that calls
+    finish() while the main thread is inside write()'s wake-up would wait for that lock forever.
+    queue.SimpleQueue's put() is reentrant (C, documented safe in signal handlers)."""
+
+    def __init__(self) -> None:
+        self._tokens: queue.SimpleQueue[None] = queue.SimpleQueue()
+
+    def set(self) -> None:
+        self._tokens.put(None)
+
+    def wait(self, timeout: float | None) -> None:
+        """Until set() or ``timeout`` [s]; one pass of the thread serves every set() so far."""
+        try:
+            self._tokens.get(timeout=timeout)
+        except queue.Empty:
+            return
+        while True:
+            try:
+                self._tokens.get_nowait()
+            except queue.Empty:
+                return
 
 
 def _make_atexit_hook(writer: BagWriter) -> Callable[[], None]:
