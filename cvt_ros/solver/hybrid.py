@@ -103,6 +103,7 @@ from .steppers import (
 from .witness import (
     N_GUARD,
     N_POLY,
+    SAMPLES,
     guard_polynomial,
     guard_value,
     lowest_point,
@@ -165,6 +166,28 @@ def _twist_crossing(method, t, h, y, y_new, K, mode, P, ACT, clock, g0, g1, G, t
     return -1.0
 
 
+@kernel
+def _left_band_upwards(method, t, h, y, y_new, K, mode, P, ACT, clock, g1, gtol, C, G, ytmp,
+                       dytmp, auxtmp, counters):
+    """A step that began inside the guard's band and ends below it: θ of the crossing down
+    after the guard's highest point in the step if the true guard stood above the band there,
+    else −1. (The guard's polynomial picks the point; with the twist rule it is the twist's.)"""
+    guard_polynomial(method, h, y, y_new, K, mode, P, C, G)
+    best_x = -1.0
+    best = -math.inf
+    for j in range(1, SAMPLES):
+        v = guard_value(G, j / SAMPLES)
+        if v > best:
+            best = v
+            best_x = j / SAMPLES
+    gt = guard_at(method, best_x, t, h, y, y_new, K, mode, P, ACT, ytmp, dytmp, auxtmp, counters)
+    if not gt > gtol:
+        return -1.0
+    tol_theta = max(1e-13, 8.0 * 2.2e-16 * abs(t)) / h
+    return locate_root(False, False, method, t, h, y, y_new, K, t, h, y, clock, mode, P, ACT, y,
+                       best_x, 1.0, gt, g1, tol_theta, ytmp, dytmp, auxtmp, ytmp, counters)
+
+
 @inline_kernel
 def _relax_twist(t1, h, y, y_new, mode, P, ACT, aux1, dytmp, counters):
     """The open massless damped node over a step: θ = θ0·e^(−(c/k)·h) exactly, the spring's
@@ -221,6 +244,14 @@ def _single_rate(method, kind, err_idx, t, h, clipped, t_end, y, y_new, K, mode,
                                     tol_theta, ytmp, dytmp, auxtmp, counters)
             if theta >= 0.0:
                 fire = CROSSING
+    if fire == NO_EVENT and g1 < -gtol and not (armed and g0 > 0.0) and g0 >= -gtol:
+        # from inside the band (just after a switch) to below it: located if the guard left
+        # the band upwards first (a short phase: a heavy load's second catch, a short
+        # engagement), else found late
+        theta = _left_band_upwards(method, t, h, y, y_new, K, mode, P, ACT, clock, g1, gtol,
+                                   C, G, ytmp, dytmp, auxtmp, counters)
+        if theta >= 0.0:
+            fire = CROSSING
     if fire == NO_EVENT and g1 < -gtol:
         fire = FOUND_LATE  # the guard left its band on the wrong side: switch now
     if fire == CROSSING:

@@ -129,6 +129,19 @@ def _split_dip(exact, t, h, tau, hs, z0, clock, P, Cv, ztmp, g0, d0, g1, d1, m4,
     return -1.0, math.inf
 
 
+@kernel
+def _left_band_upwards(exact, t, h, tau, hs, z0, clock, P, Cv, ztmp, g0, d0, g1, d1, gtol):
+    """σ in (0, 1) where the slip of a look that ends below its band stood above it (the
+    Hermite cubic's highest point, else the look's middle), or -1: the crossing down lies
+    after it. g, d: the slip and its σ-rate at both ends."""
+    tm, pm = hermite_minimum(-g0, -d0, -g1, -d1)
+    if tm > 0.0 and _split_slip(exact, tm, t, h, tau, hs, z0, clock, P, Cv, ztmp) > gtol:
+        return tm
+    if _split_slip(exact, 0.5, t, h, tau, hs, z0, clock, P, Cv, ztmp) > gtol:
+        return 0.5
+    return -1.0
+
+
 @inline_kernel
 def _modal_jerk_bound(LIN, W):
     """Σ_k |ω3 amplitude of mode k|·|λ_k|⁴: a bound on |d⁴ω3/dt⁴| of the exact output [rad/s⁵]
@@ -306,7 +319,16 @@ def split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arme
         gtol = SLIP_TOLERANCE * (1.0 + abs(v1) + abs(z_new[Z_OMEGA3]))
         sigma = 1.0
         hi = 1.0
-        if armed and g0 > 0.0:
+        lo = 0.0
+        if not (armed and g0 > 0.0) and g0 >= -gtol and g1 < -gtol:
+            # a look from inside the band (just after a release) to below it: a catch if the
+            # slip left the band upwards first (a short open interval: a heavy load's second
+            # engagement 0.6 ms after its release), located after that; else found late
+            lo = _left_band_upwards(exact, t, h, tau, hs, z, clock, P, Cv, ztmp, g0,
+                                    hs * (dw3_0 - dv0), g1, hs * (dw3_1 - dv1), gtol)
+            if lo > 0.0:
+                fire = CROSSING
+        elif armed and g0 > 0.0:
             if g1 < 0.0:
                 fire = CROSSING
             else:
@@ -329,18 +351,18 @@ def split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arme
                 tol_s = max(1e-13, 8.0 * 2.2e-16 * abs(tau)) / hs
                 gt_hi = true_split_slip(exact, hi, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb,
                                         ztmp)
-                gt_lo = true_split_slip(exact, 0.0, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb,
+                gt_lo = true_split_slip(exact, lo, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb,
                                         ztmp)
                 if gt_hi < 0.0 < gt_lo:
                     sigma = locate_root(True, exact, DOPRI5, t, h, y, y_new, K, tau, hs, z, clock,
-                                        mode, P, ACT, Cv, 0.0, hi, gt_lo, gt_hi, tol_s, ycomb,
+                                        mode, P, ACT, Cv, lo, hi, gt_lo, gt_hi, tol_s, ycomb,
                                         dytmp, auxtmp, ztmp, counters)
                 elif gt_hi >= -gtol:
                     fire = NO_EVENT   # a dip of the rocker speed's interpolant alone
                     if hi == 1.0:
                         g1 = gt_hi
                 else:
-                    sigma = 0.0 if gt_lo <= 0.0 else hi
+                    sigma = lo if gt_lo <= 0.0 else hi
         if fire == NO_EVENT and g1 < -gtol:
             fire = FOUND_LATE
         if fire != NO_EVENT:
