@@ -355,6 +355,15 @@ def test_step_metrics_of_a_first_order_response():
     assert m.settling_time == pytest.approx(tau * math.log(50), rel=1e-3)  # ±2 %
     assert m.overshoot == 0.0
     assert math.isnan(response_metrics(t[t < 1.3], y[t < 1.3], 1.0, 1.0, 3.0).settling_time)
+    # still creeping up at the end: its final value a tail mean, below the last values; the
+    # last value is its peak, not an overshoot (it was reported as 0.7 % on such a ramp)
+    creep = response_metrics(t, y, 1.0, 1.0, float(np.mean(y[t > 1.5])))
+    assert creep.peak == y[-1] > creep.final and creep.overshoot == 0.0
+    # a real overshoot: 18 % of the change over the final value, then back onto it
+    over = 1.0 + 2.0 * (1 - np.exp(-np.maximum(t - 1.0, 0) / tau)) \
+        + 0.4 * np.exp(-((t - 1.8) / 0.1) ** 2)
+    m = response_metrics(t, over, 1.0, 1.0, 3.0)
+    assert m.overshoot == pytest.approx((over.max() - 3.0) / 2.0) and 0.15 < m.overshoot < 0.2
 
 
 # ---------------------------------------------------------------------------------- CLI

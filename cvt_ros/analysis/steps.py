@@ -50,7 +50,7 @@ class ResponseMetrics:
     final: float
     rise_time: float        # first time at RISE_LIMITS[1] of the change − first at [0]
     settling_time: float    # from the step until y stays within ±band of the change of final
-    overshoot: float        # max(0, peak − 1) as a fraction of the change
+    overshoot: float        # peak − max(1, lowest after it), ≥ 0, as a fraction of the change
     peak: float             # the value farthest in the direction of the change
     peak_time: float
 
@@ -81,8 +81,12 @@ def response_metrics(t: np.ndarray, y: np.ndarray, t_step: float, initial: float
         settling = float(t[outside[-1] + 1] - t_step)
     else:
         settling = nan
-    return ResponseMetrics(initial, final, rise_time, settling, max(0.0, float(frac[k]) - 1.0),
-                       float(y[k]), float(t[k] - t_step))
+    # overshoot: what the response gave back after its peak, beyond the final value. A ratio
+    # still creeping towards its end has its peak last and gives nothing back: the final value
+    # (a tail mean) is not exceeded by an overshoot there, only by the creep
+    overshoot = max(0.0, float(frac[k]) - max(1.0, float(np.min(frac[k:]))))
+    return ResponseMetrics(initial, final, rise_time, settling, overshoot, float(y[k]),
+                           float(t[k] - t_step))
 
 
 @dataclass
