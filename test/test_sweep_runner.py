@@ -162,3 +162,21 @@ def test_summary_plot_grid_and_scatter(tmp_path, short_rows):
     fake = [dict(t.variables, case=t.index, status='ok', mean_ratio=float(v), efficiency=0.9)
             for t, v in zip(build_tasks(scattered), np.linspace(0.2, 0.8, 6), strict=True)]
     assert plot_summary(scattered, fake, tmp_path / 'scatter.png') is not None
+
+
+def test_an_unphysical_figure_is_kept_with_a_warning(tmp_path):
+    """No load, no damping: output and motor work are both the inertias' give and take, and
+    their ratio came out 1.0004 — stored as an efficiency with no word. Now the case's warnings
+    say what cvt-sim analyze says of it."""
+    campaign = campaign_file(tmp_path, """\
+        scene: conveyor
+        duration: 4.0
+        vary:
+          linkage.crank_length: [0.02]
+          load.torque: [0.0]
+          shaft.damping: [0.0]
+        """)
+    (row,) = [run_case(t) for t in build_tasks(campaign)]
+    assert row['status'] == 'ok'
+    assert not 0.0 <= row['efficiency'] <= 1.0, row['efficiency']
+    assert 'efficiency outside 0–100 %' in row['warnings'], row['warnings']

@@ -32,7 +32,7 @@ import numpy as np
 from .errors import AnalysisError
 from .trace import Trace
 
-__all__ = ['CYCLE_FIELDS', 'DRIVEN_RATIO', 'TWO_PI', 'CycleTable', 'Integrator',
+__all__ = ['CYCLE_FIELDS', 'DRIVEN_RATIO', 'TWO_PI', 'UNPHYSICAL_NOTES', 'CycleTable', 'Integrator',
            'cycle_boundaries', 'cycle_metrics', 'physical']
 
 TWO_PI = 2.0 * math.pi
@@ -190,6 +190,20 @@ def efficiency(output_work: float, motor_work: float, ratio: float) -> float:
     if not motor_work > 0 or not abs(ratio) >= DRIVEN_RATIO:
         return math.nan
     return output_work / motor_work
+
+
+#: why a figure fails :func:`physical`, as reports say it
+UNPHYSICAL_NOTES = {
+    'efficiency': 'efficiency outside 0–100 %: not a transmission efficiency — over this window '
+                  'the inertias and the shaft released (or took) stored energy, or the load '
+                  'drives the output',
+    'engaged_fraction': 'engaged fraction outside 0–100 %: inconsistent clutch events',
+    'ripple': 'negative ripple: inconsistent samples',
+    'ripple_max': 'negative ripple: inconsistent samples',
+    'clutch_torque_mean': 'negative mean clutch torque: a one-way clutch cannot transmit it '
+                          '(inconsistent samples)',
+    'load_factor': 'negative load factor: inconsistent samples',
+}
 
 
 def physical(name: str, value: float) -> bool:

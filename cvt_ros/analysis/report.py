@@ -17,7 +17,7 @@ from typing import IO, Any
 import numpy as np
 
 from .analyze import RunAnalysis
-from .cycles import CYCLE_FIELDS, physical
+from .cycles import CYCLE_FIELDS, UNPHYSICAL_NOTES, physical
 from .steps import MAX_SHOWN_STEPS, MIN_STEP_CYCLES, SETTLING_BAND, StepResponse
 from .trace import RecordingInfo
 
@@ -47,17 +47,6 @@ _SUMMARY_ROWS = (
     ('output_power', 'output (load) power [W]', '{:.4f}'),
     ('efficiency', 'efficiency P4/P1', '{:.4%}'),
 )
-_FLAG_NOTES = {
-    'efficiency': 'efficiency outside 0–100 %: not a transmission efficiency — over this window '
-                  'the inertias and the shaft released (or took) stored energy, or the load '
-                  'drives the output',
-    'engaged_fraction': 'engaged fraction outside 0–100 %: inconsistent clutch events',
-    'ripple': 'negative ripple: inconsistent samples',
-    'ripple_max': 'negative ripple: inconsistent samples',
-    'clutch_torque_mean': 'negative mean clutch torque: a one-way clutch cannot transmit it '
-                          '(inconsistent samples)',
-    'load_factor': 'negative load factor: inconsistent samples',
-}
 
 
 def _fmt(template: str, value: Any) -> str:
@@ -162,7 +151,7 @@ def format_run(analysis: RunAnalysis, cycles_shown: int | None = 10) -> str:
                 _fmt('{:9.3%}', v['engaged_fraction']), _fmt('{:9.0f}', v['switches']),
                 _fmt('{:9.3f}', v['motor_power']), eta]))
     for key in sorted(flags):
-        lines.append(f'  ! {_FLAG_NOTES.get(key, f"{key}: not physical")}')
+        lines.append(f'  ! {UNPHYSICAL_NOTES.get(key, f"{key}: not physical")}')
     for step in analysis.steps[:MAX_SHOWN_STEPS]:
         lines.append(_step_line(step))
     if len(analysis.steps) > MAX_SHOWN_STEPS:
@@ -206,7 +195,7 @@ def _clean(value: Any) -> Any:
 
 def _flags(windows: dict[str, dict[str, float]]) -> list[dict[str, Any]]:
     return [{'window': name, 'figure': key, 'value': value,
-             'reason': _FLAG_NOTES.get(key, 'not physical')}
+             'reason': UNPHYSICAL_NOTES.get(key, 'not physical')}
             for name, window in windows.items() for key, value in window.items()
             if not physical(key, value)]
 

@@ -127,6 +127,10 @@ def _report(run, plot):
     for kind, count in kinds.most_common():
         first = next(r for r in failed if r['failure'] == kind)
         print(f"  {count} {kind}: e.g. case {first['case']}: {first['error'][:300]}")
+    warned = [r for r in rows if r['status'] == 'ok' and r['warnings']]
+    if warned:   # ok, but not to be read as plain numbers: a reader of the table must know
+        print(f"  {len(warned)} of the ok cases with warnings (the table's warnings column), "
+              f"e.g. case {warned[0]['case']}: {warned[0]['warnings'][:300]}")
     for problem in run.problems:
         print(f"  note: {problem}")
     print(f"table: {run.path}")

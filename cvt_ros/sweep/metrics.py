@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from ..analysis.cycles import cycle_metrics
+from ..analysis.cycles import UNPHYSICAL_NOTES, cycle_metrics, physical
 from ..analysis.steady import find_steady_state
 from ..analysis.stepinfo import METRICS as STEP_METRICS
 from ..analysis.trace import Trace
@@ -106,6 +106,8 @@ def scene_metrics(values, result, duration, window, names):
         for name, key in _FROM_WINDOW.items():
             if name in out:
                 out[name] = float(figures.get(key, math.nan))
+                if not physical(key, out[name]):   # kept, but never as a plain number
+                    warnings.append(f"{name} = {out[name]:.6g}: {UNPHYSICAL_NOTES[key]}")
         if 'switches_per_second' in out:
             span = figures['t_end'] - figures['t_start']
             out['switches_per_second'] = figures['switches_per_cycle'] * figures['cycles'] / span
