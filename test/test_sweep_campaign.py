@@ -151,6 +151,10 @@ def test_a_scene_parameter_the_scenario_schedule_overrides_is_refused(tmp_path):
         """, 'fixed_load.yaml')
     text = error_of(tmp_path, "scenario: fixed_load.yaml\nvary: {load.torque: [4.0, 8.0]}\n")
     assert "case 0 (load.torque = 4.0): load.torque = 4.0 does not reach the device" in text
+    # a load schedule with changes: the varied load would hold only until the first one
+    text = error_of(tmp_path, "scenario: conveyor_load_step\nvary: {load.torque: [4.0, 8.0]}\n")
+    assert ("case 0 (load.torque = 4.0): load.torque = 4.0 holds only until t = 4 s: the "
+            "scenario's load schedule changes it then") in text, text
 
 
 def test_numbers_written_as_yaml_1_1_text_are_numbers(tmp_path):

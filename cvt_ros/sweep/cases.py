@@ -210,6 +210,15 @@ def _scenario_tasks(campaign, cases, out_dir):
                                           f"device: the scenario's schedule sets it to "
                                           f"{plant[lost[0]]!r} (vary it in the scenario file)"))
             continue
+        if 'load.torque' in scene and scenario.load.changes:
+            # the varied value would hold only until the schedule's first change: rows
+            # labelled with a load the run mostly did not have
+            bad.append((index, variables, f"load.torque = {scene['load.torque']!r} holds only "
+                                          f"until t = {scenario.load.changes[0].at:g} s: the "
+                                          f"scenario's load schedule changes it then (vary the "
+                                          f"load in the scenario file, or sweep a scenario "
+                                          f"without load changes)"))
+            continue
         case_id = _digest({**common, 'scene': scene, 'gains': gains}, seen)
         tasks.append(CaseTask(index, case_id, variables, 'scenario',
                               scenario=replace(scenario, controller_settings=gains),
