@@ -180,3 +180,25 @@ def test_an_unphysical_figure_is_kept_with_a_warning(tmp_path):
     assert row['status'] == 'ok'
     assert not 0.0 <= row['efficiency'] <= 1.0, row['efficiency']
     assert 'efficiency outside 0–100 %' in row['warnings'], row['warnings']
+
+
+def test_a_scenario_window_leaves_the_start_up_out(tmp_path):
+    """conveyor_pi_gains' kind of case (kp 3e-3, ki 5.67e-3): over the whole run the start-up
+    from rest decides two figures — its clutch impact is the peak torque of every case, and
+    it has not settled when the set point changes at 2 s, so the worst settling time is NaN.
+    From 2 s on they are the set-point steps' own."""
+    def row(window):
+        campaign = campaign_file(tmp_path, f"""\
+            scenario: conveyor_setpoint_steps
+            {window}
+            cases: [{{controller.kp: 3.0e-3, controller.ki: 5.67e-3}}]
+            metrics: [settling_time, peak_clutch_torque, iae]
+            """, f'w{len(window)}.yaml')
+        result = run_case(build_tasks(campaign)[0])
+        assert result['status'] == 'ok', result['error']
+        return result
+    whole, steps = row(''), row('window: {start: 2.0}')
+    assert math.isnan(whole['settling_time']) and whole['peak_clutch_torque'] > 1000.0
+    assert 1.0 < steps['settling_time'] < 6.0
+    assert 0.0 < steps['peak_clutch_torque'] < 0.5 * whole['peak_clutch_torque']
+    assert 0.0 < steps['iae'] < whole['iae']

@@ -151,12 +151,17 @@ def _window(trace, tm, t_start, t_end, y, r_mid, ref_t, ref, a, tc, ev, t_e):
 
 
 def summarize_steps(steps: list[dict], trace: Trace, reference_t: np.ndarray,
-                    reference: np.ndarray) -> dict:
+                    reference: np.ndarray, since: float | None = None) -> dict:
     """Run-level metrics: the worst step for the step metrics (rise time, overshoot, settling
     time, |steady-state error| of the last step, max deviation), the whole run for IAE, peak
     clutch torque, crank travel and switches per second. A step that never reaches 90 % or
     never settles makes the run's rise or settling time NaN: the worst of the steps is not
-    known, and a test asserting a bound on it must fail."""
+    known, and a test asserting a bound on it must fail. ``since`` [s]: only the steps from
+    then on, and the whole-run figures over [since, end] (e.g. without the start-up)."""
+    start = float(trace.t[0])
+    if since is not None and since > start:
+        steps = [s for s in steps if s['t'] >= since - 1e-9]
+        start = since
     def applies(step, name):
         """A step with nothing to follow (the set point as the speed already is) has no rise,
         overshoot or settling to be the worst of."""
@@ -172,7 +177,7 @@ def summarize_steps(steps: list[dict], trace: Trace, reference_t: np.ndarray,
             return math.nan
         return max(vals, key=abs)
     whole = step_metrics(trace, reference_t, reference,
-                         [StepEvent(float(trace.t[0]), 'start', math.nan, math.nan)])[0]
+                         [StepEvent(start, 'start', math.nan, math.nan)])[0]
     return {
         'rise_time': worst('rise_time', ('start', 'setpoint')),
         'overshoot': worst('overshoot', ('start', 'setpoint')),

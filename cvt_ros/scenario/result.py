@@ -115,6 +115,13 @@ class ScenarioRun:
             return dict.fromkeys(METRICS, math.nan)
         return summarize_steps(self.steps, self.trace(), self._grid(), self.setpoint)
 
+    def metrics_since(self, t):
+        """Run-level metrics over the steps from ``t`` [s] on (the whole-run figures over
+        [t, end]): e.g. the set-point steps without the start-up from rest."""
+        if len(self.t) < 3:
+            return dict.fromkeys(METRICS, math.nan)
+        return summarize_steps(self.steps, self.trace(), self._grid(), self.setpoint, since=t)
+
     # ------------------------------------------------------------------ outputs
     def to_dict(self):
         def clean(v):

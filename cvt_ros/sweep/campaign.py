@@ -59,7 +59,8 @@ class Campaign:
     controller: str = None           # MODULE:FACTORY (scenario); None: the reference controller
     duration: float = None           # s (None: the scenario's own)
     sample_dt: float = 1e-3          # s (scene campaigns: the sample grid of the metrics)
-    window: object = 'steady'        # 'steady' | start time [s] of the metric window
+    window: object = 'steady'        # 'steady' | start time [s] of the metric window (scenario:
+    #                                   the steps from then on; 0.0 all of them)
     variables: tuple = ()
     cases: tuple = ()                # explicit cases (maps name → value), instead of vary
     sampling: str = 'grid'
@@ -212,9 +213,12 @@ def load_campaign(path):
                                 f"period (its control_period:)")
         sample_dt = 0.0
     window = _window(doc.get('window', 'steady'), where)
-    if kind == 'scenario' and 'window' in doc:
-        raise CampaignError(f"{where}: window: scenario metrics are per set-point/load step "
-                            f"(the scenario's schedules), not over a window")
+    if kind == 'scenario':
+        if 'window' in doc and window == 'steady':
+            raise CampaignError(f"{where}: window: scenario metrics are per set-point/load step; "
+                                f"{{start: T}} keeps the steps from T s on (e.g. leaves out the "
+                                f"start-up from rest), 'steady' does not apply")
+        window = 0.0 if window == 'steady' else window
     sampling = choice(doc, 'sampling', where, SAMPLINGS, 'grid')
     if 'vary' in doc and 'cases' in doc:
         raise CampaignError(f"{where}: give vary: (axes) or cases: (an explicit list), not both")

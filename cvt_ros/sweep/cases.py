@@ -187,6 +187,8 @@ def _scenario_tasks(campaign, cases, out_dir):
 
     common = {'kind': 'scenario', 'scenario': text, 'duration': campaign.duration,
               'controller': campaign.controller, 'metrics': list(campaign.metrics), 'v': FORMAT}
+    if campaign.window:
+        common['window'] = campaign.window   # (absent when 0: the ids of earlier tables hold)
     tasks, bad, seen = [], [], {}
     for index, variables in enumerate(cases):
         scene = {**fixed_scene, **{k: v for k, v in variables.items()
@@ -223,7 +225,8 @@ def _scenario_tasks(campaign, cases, out_dir):
         tasks.append(CaseTask(index, case_id, variables, 'scenario',
                               scenario=replace(scenario, controller_settings=gains),
                               controller=campaign.controller,
-                              duration=scenario.duration, metrics=campaign.metrics,
+                              duration=scenario.duration, window=campaign.window,
+                              metrics=campaign.metrics,
                               time_budget=campaign.time_budget,
                               record=_record_path(campaign, out_dir, index, case_id)))
     if bad:

@@ -9,7 +9,8 @@ residual is the solver's own ledger over the whole run (exact, not sampled:
 :func:`cvt_ros.solver.offline.summarize`).
 
 **Scenario campaigns** (closed loop): the controller kit's step metrics
-(:mod:`cvt_ros.analysis.stepinfo`, run level: the worst step) and the energy residual.
+(:mod:`cvt_ros.analysis.stepinfo`, run level: the worst step; with ``window: {start: T}`` over
+the steps from T on) and the energy residual.
 """
 import math
 
@@ -120,9 +121,11 @@ def scene_metrics(values, result, duration, window, names):
     return out, warnings
 
 
-def scenario_metrics(run, energy, names):
-    """Figures by name of one scenario run (a ScenarioRun) and the plant's energy balance."""
-    out = {name: float(run.metrics.get(name, math.nan)) for name in names
+def scenario_metrics(run, energy, names, since=0.0):
+    """Figures by name of one scenario run (a ScenarioRun) and the plant's energy balance;
+    ``since`` [s]: the steps from then on, and the whole-run figures over that span."""
+    metrics = run.metrics_since(since) if since else run.metrics
+    out = {name: float(metrics.get(name, math.nan)) for name in names
            if name != 'energy_residual'}
     if 'energy_residual' in names:
         out['energy_residual'] = float(energy.get('relative_residual', math.nan))

@@ -94,7 +94,7 @@ def _run_scenario(task, deadline):
         kind = 'diverged' if run.error.startswith('the simulation failed') else 'controller'
         raise CaseFailure(kind, run.error)
     energy = plant.sim.energy_balance() if hasattr(plant.sim, 'energy_balance') else {}
-    return scenario_metrics(run, energy, task.metrics), warnings
+    return scenario_metrics(run, energy, task.metrics, since=task.window), warnings
 
 
 def _record_scenario(task, run):
