@@ -281,6 +281,15 @@ def test_csv_input_gives_the_same_metrics(paper):
     assert result.energy['available']
     bare = analyze_trace(load(str(csv_path))[0][0])
     assert not bare.energy['available'] and '--scene' in bare.energy['reason']
+    assert not any('--scene' in note for note in traces[0].notes)   # the right scene: no word
+    # a scene that is not the run's: replacing the recording's parameters, or a CSV's crank
+    # length that is not the scene's, is said (the energy residual became 36 % of the work)
+    (over,), _ = load(str(mcap_path), scene='conveyor')
+    (wrong,), _ = load(str(csv_path), scene='conveyor')
+    assert any('replaces the parameters the recording holds' in n for n in over.notes)
+    for trace in (over, wrong):
+        assert any('crank length 0.04 m is not the recorded one (0.03 m' in n
+                   for n in trace.notes), trace.notes
 
 
 def test_crank_length_from_angles_inverts_the_linkage():

@@ -52,6 +52,16 @@ def load(path: str, *, scene: str | None = None, namespace: str | None = None
         except (ValueError, GrashofError) as exc:  # SceneError, ParameterError
             raise AnalysisError(f'--scene: {exc}') from None
         for trace in traces:
+            if trace.parameters:
+                trace.notes.append(f'--scene {scene} replaces the parameters the recording '
+                                   f'holds ({trace.parameters_origin or "its own"}): figures '
+                                   f'that use them (energy balance, efficiency) are then '
+                                   f"the scene's, not this run's")
+            a0 = float(trace.crank_length[0]) if len(trace.crank_length) else math.nan
+            if math.isfinite(a0) and abs(a0 - values['linkage.crank_length']) > 1e-9:
+                trace.notes.append(f"--scene {scene}: its crank length "
+                                   f"{values['linkage.crank_length']:g} m is not the recorded "
+                                   f"one ({a0:g} m at the start): is it this run's scene?")
             trace.parameters = values
             trace.parameters_origin = f'--scene {scene}'
             trace.scene = trace.scene or scene
