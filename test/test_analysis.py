@@ -414,6 +414,12 @@ def test_analyze_cli_prints_metrics_writes_plots_json_and_step_responses(stepped
         table = list(csv.DictReader(f))
     assert len(table) == len(run['cycles'])
     assert float(table[-1]['ratio']) == pytest.approx(run['cycles'][-1]['ratio'])
+    # one numbering from 1 everywhere: the printed table, the CSV and the JSON
+    n = len(table)
+    assert [row['cycle'] for row in table] == [str(k) for k in range(1, n + 1)]
+    assert [c['cycle'] for c in run['cycles']] == list(range(1, n + 1))
+    assert f'{n:9d}' in out.splitlines()[[i for i, line in enumerate(out.splitlines())
+                                          if 'per cycle (last 3 of' in line][0] + 4]
     # the crank step leaves the flywheels trading energy: the motion has settled (the step's
     # final value), the powers have not (no steady-state figures for the run)
     assert not run['steady_state']['found'] and 'motor power' in run['steady_state']['reason']

@@ -146,7 +146,9 @@ class CycleTable:
         return self.values[name]
 
     def rows(self) -> list[dict[str, float]]:
-        return [{k: float(v[i]) for k, v in self.values.items()} for i in range(len(self))]
+        """One dict per cycle; ``cycle`` its number from 1 (an int)."""
+        return [{k: int(v[i]) if k == 'cycle' else float(v[i]) for k, v in self.values.items()}
+                for i in range(len(self))]
 
     def window(self, first: int, stop: int) -> dict[str, float]:
         """Metrics of the whole cycles ``first`` … ``stop − 1`` (sums of their integrals, so
@@ -264,7 +266,7 @@ def cycle_metrics(trace: Trace) -> tuple[CycleTable, np.ndarray]:
         out_speed = dphi4 / T
         ratio = dphi4 / TWO_PI
         values = {
-            'cycle': np.arange(n_cyc, dtype=float),
+            'cycle': np.arange(1, n_cyc + 1, dtype=float),   # numbered from 1, as reports say
             't_start': tb[a],
             'period': T,
             'crank_speed': TWO_PI / T,

@@ -144,7 +144,7 @@ def format_run(analysis: RunAnalysis, cycles_shown: int | None = 10) -> str:
                 flags.add('efficiency')
                 eta += '!'
             lines.append('  ' + ' '.join(cell.rjust(9) for cell in [
-                f"{v['cycle'] + 1:9.0f}", f"{v['t_start']:9.4f}", f"{v['period'] * 1e3:9.3f}",
+                f"{v['cycle']:9.0f}", f"{v['t_start']:9.4f}", f"{v['period'] * 1e3:9.3f}",
                 _fmt('{:9.5f}', v['ratio']), _fmt('{:9.3%}', v['ripple']),
                 _fmt('{:9.5f}', v['twist_peak']), _fmt('{:9.5f}', v['twist_mean']),
                 _fmt('{:9.3f}', v['clutch_torque_peak']), _fmt('{:9.4f}', v['load_factor']),
