@@ -185,3 +185,20 @@ def test_cli_refuses_a_large_campaign_without_yes_before_anything_runs(tmp_path)
                            '--max-cases', '100', '--yes', '--dry-run'], capture_output=True,
                           text=True, timeout=120)
     assert proc.returncode == 0 and '2500 cases' in proc.stdout and not out.exists()
+
+
+def test_cli_a_local_cluster_that_cannot_start_is_one_clear_error(tmp_path):
+    """--dashboard with a host that does not resolve: LocalCluster raises RuntimeError; that
+    was a 57-line traceback and exit 1 (the code of 'some cases failed')."""
+    path = write(tmp_path, """\
+        scene: conveyor
+        duration: 1
+        vary: {load.torque: [4.0]}
+        """)
+    proc = subprocess.run([sys.executable, '-m', 'cvt_ros', 'sweep', str(path), '--out',
+                           str(tmp_path / 'out'), '--workers', '1', '--dashboard',
+                           'no-such-host.invalid:8787'], capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 2, proc.stderr
+    assert 'Traceback' not in proc.stderr
+    assert 'cannot start a local cluster (dashboard at no-such-host.invalid:8787)' in proc.stderr

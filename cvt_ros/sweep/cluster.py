@@ -134,11 +134,15 @@ def open_cluster(scheduler=None, workers=None, dashboard=':8787', timeout=60.0):
                                        dashboard_address=dashboard,
                                        silence_logs=logging.ERROR)
             client = Client(cluster)
-    except (OSError, TimeoutError) as exc:
+    except (OSError, TimeoutError, RuntimeError) as exc:
+        # (LocalCluster raises RuntimeError when it cannot start: e.g. a dashboard host that
+        # does not resolve)
         if cluster is not None:
             cluster.close()
-        where = f"the scheduler at {scheduler}" if scheduler else 'a local cluster'
-        raise SweepError(f"cannot connect to {where}: {exc}") from None
+        if scheduler:
+            raise SweepError(f"cannot connect to the scheduler at {scheduler}: {exc}") from None
+        raise SweepError(f"cannot start a local cluster (dashboard at {dashboard}): "
+                         f"{exc}") from None
     handle = ClusterHandle(client, cluster, client.dashboard_link or '',
                            client.scheduler.address)
     try:
