@@ -135,6 +135,9 @@ def test_random_and_latin_hypercube_are_seeded(tmp_path, sampling):
      "case 1 (controller.crank_min = 0.2): controller.crank_max: 0.09 m must be above"),
     ("scene: nowhere\nduration: 1\nvary: {load.torque: [1]}\n", "scene: scene 'nowhere' not "
                                                                "found"),
+    # was: every case ran, then failed in the analysis ('the crank turns more than once')
+    ("scene: conveyor\nduration: 1\nsample_dt: 0.05\nvary: {load.torque: [1, 2]}\n",
+     "case 0 (load.torque = 1.0): sample_dt: 0.05 s gives fewer than 4 samples per crank turn"),
 ])
 def test_bad_campaigns_are_one_clear_error(tmp_path, body, expected):
     text = error_of(tmp_path, body)

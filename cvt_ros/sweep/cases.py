@@ -16,6 +16,7 @@ skip finished cases (even after the campaign grew new values) and never mix in s
 import hashlib
 import itertools
 import json
+import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -120,6 +121,27 @@ def _fail(campaign, bad, total):
                          f"{reason}{more}")
 
 
+#: fewest samples per crank turn the cycle metrics take (peaks, ripple and the crank angle's
+#: turns need several; the analysis refuses more than a turn between two samples)
+MIN_SAMPLES_PER_TURN = 4
+
+
+def _too_coarse(sample_dt, values):
+    """Why ``sample_dt`` cannot resolve the crank's turns of this case ('' if it can): the
+    fastest crank speed its motor model gives (a constant-torque motor: at least its start)."""
+    model = values['motor.model']
+    speed = {'induction': values['motor.synchronous_speed'],
+             'constant_speed': values['motor.speed']}.get(model, 0.0)
+    speed = max(abs(speed), abs(values['initial.crank_speed']))
+    turn = 2.0 * math.pi / speed if speed > 0 else math.inf
+    if sample_dt * MIN_SAMPLES_PER_TURN <= turn:
+        return ''
+    return (f"sample_dt: {sample_dt:g} s gives fewer than {MIN_SAMPLES_PER_TURN} samples per "
+            f"crank turn ({turn:.3g} s at {speed:g} rad/s): the cycle metrics need "
+            f"sample_dt ≤ {turn / MIN_SAMPLES_PER_TURN:.2g} s (the shipped campaigns take "
+            f"~80 a turn)")
+
+
 def _scene_tasks(campaign, cases, out_dir):
     try:
         base = load_scene(_relative(campaign, campaign.base), campaign.overrides)
@@ -133,6 +155,10 @@ def _scene_tasks(campaign, cases, out_dir):
             values = parameters.validate({**base, **variables})
         except (parameters.ParameterError, GrashofError) as exc:
             bad.append((index, variables, str(exc)))
+            continue
+        coarse = _too_coarse(campaign.sample_dt, values)
+        if coarse:
+            bad.append((index, variables, coarse))
             continue
         case_id = _digest({**common, 'values': values}, seen)
         tasks.append(CaseTask(index, case_id, variables, 'scene', base=base,
