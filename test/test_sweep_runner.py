@@ -138,6 +138,9 @@ def test_table_parts_merge_and_resume(tmp_path, short_rows):
     assert table.schema.field('peak_clutch_torque').metadata[b'unit'] == b'N*m'
     assert b'conveyor' in table.schema.metadata[b'cvt_ros.campaign']
     assert [t.index for t in plan_campaign(campaign, out).todo] == [1, 3]
+    # record: added to the campaign: the cases done without a recording run again to make it
+    recorded = campaign_file(tmp_path, SHORT.rstrip(' ') + '    record: csv\n', 'r.yaml')
+    assert [t.index for t in plan_campaign(recorded, out).todo] == [0, 1, 2, 3]
     # the folder of another campaign is refused before anything runs
     other = campaign_file(tmp_path, SHORT.replace('duration: 4.0', 'duration: 5.0'), 'o.yaml')
     with pytest.raises(TableError, match='2 of its 2 cases are not cases of'):

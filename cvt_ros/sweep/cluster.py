@@ -218,8 +218,11 @@ def plan_campaign(campaign, out_dir, *, tasks=None, retry_failed=False):
         raise TableError(f"{store.path}: {len(foreign)} of its {len(done)} cases are not cases "
                          f"of {campaign.path} (another campaign, or this one with other "
                          f"settings or metrics): use another --out, or move the table away")
+    # a case done before without the recording this campaign asks for runs again to make it
+    # (record: added to a campaign whose table holds its cases)
     todo = [t for t in tasks if t.case_id not in done
-            or (retry_failed and done[t.case_id]['status'] != 'ok')]
+            or (retry_failed and done[t.case_id]['status'] != 'ok')
+            or (t.record and done[t.case_id]['status'] == 'ok' and not os.path.exists(t.record))]
     return Plan(campaign, tasks, store, order, todo)
 
 
