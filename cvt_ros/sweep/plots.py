@@ -63,6 +63,17 @@ def _value(row, metric):
     return math.nan if v is None or row.get('status') != 'ok' else float(v)
 
 
+def _short(value, digits=3):
+    """A number in few characters: 1.6e3, not 1.59e+03 (tick and cell labels side by side)."""
+    if not isinstance(value, (int, float, np.floating, np.integer)):
+        return str(value)
+    if 100.0 <= abs(value) < 1e4:
+        return f"{value:.0f}"   # 116 rather than 1.2e2
+    text = f"{value:.{digits}g}"
+    mantissa, e, exponent = text.partition('e')
+    return mantissa + e + str(int(exponent)) if e else text
+
+
 def _map(ax, fig, rows, x, y, xs, ys, metric, kind):
     """A colour map on the grid's cells, one cell per case (axes by index: uneven lists and log
     ranges get equal cells), the value written in each."""
@@ -76,20 +87,22 @@ def _map(ax, fig, rows, x, y, xs, ys, metric, kind):
     fig.colorbar(mesh, ax=ax, label=_label(metric, kind))
     finite = z[np.isfinite(z)]
     mid = 0.5 * (finite.min() + finite.max()) if len(finite) else 0.0
+    digits = 3 if len(xs) <= 6 else 2   # what fits a cell at 6 pt
     for i, yv in enumerate(ys):
         for j, xv in enumerate(xs):
             row = at[(xv, yv)]
             if row.get('status') != 'ok':
                 ax.plot(j, i, 'x', color='red', ms=10, mew=2)
             elif math.isfinite(z[i, j]):
-                ax.text(j, i, f"{z[i, j]:.3g}", ha='center', va='center', fontsize=6,
+                ax.text(j, i, _short(z[i, j], digits), ha='center', va='center', fontsize=6,
                         color='white' if z[i, j] < mid else 'black')
             if row.get('steady') is False:
                 ax.add_patch(_hatch(j, i))
     step_x = max(1, len(xs) // 8)
-    ax.set_xticks(range(0, len(xs), step_x), [f"{v:.3g}" for v in xs[::step_x]])
+    ax.set_xticks(range(0, len(xs), step_x), [_short(v) for v in xs[::step_x]],
+                  rotation=45 if len(xs[::step_x]) > 5 else 0)
     step_y = max(1, len(ys) // 10)
-    ax.set_yticks(range(0, len(ys), step_y), [f"{v:.3g}" for v in ys[::step_y]])
+    ax.set_yticks(range(0, len(ys), step_y), [_short(v) for v in ys[::step_y]])
     ax.set_xlabel(_label(x, kind))
     ax.set_ylabel(_label(y, kind))
     ax.set_title(metric)
