@@ -11,7 +11,7 @@ import pytest
 from cvt_ros.analysis import load
 from cvt_ros.sweep import build_tasks, load_campaign, run_case
 from cvt_ros.sweep.cluster import plan_campaign
-from cvt_ros.sweep.plots import plot_summary
+from cvt_ros.sweep.plots import plot_summary, title_notes
 from cvt_ros.sweep.table import TableError
 
 
@@ -165,6 +165,17 @@ def test_summary_plot_grid_and_scatter(tmp_path, short_rows):
     fake = [dict(t.variables, case=t.index, status='ok', mean_ratio=float(v), efficiency=0.9)
             for t, v in zip(build_tasks(scattered), np.linspace(0.2, 0.8, 6), strict=True)]
     assert plot_summary(scattered, fake, tmp_path / 'scatter.png') is not None
+    # a third varied parameter the two axes cannot show: the title says so
+    three = campaign_file(tmp_path, SHORT.replace(
+        'load.torque: [4.0, 8.0]', 'load.torque: [4.0, 8.0]\n      shaft.damping: [0.0, 0.1]'),
+        't.yaml')
+    rows3 = [dict(t.variables, case=t.index, status='ok', mean_ratio=0.3, efficiency=0.9)
+             for t in build_tasks(three)]
+    notes = title_notes(three, rows3, 'linkage.crank_length', 'load.torque')
+    assert any(n.startswith('shaft.damping also varied, not told apart') for n in notes)
+    assert not any('also varied' in n for n in title_notes(campaign, rows,
+                                                            'linkage.crank_length',
+                                                            'load.torque'))
 
 
 def test_an_unphysical_figure_is_kept_with_a_warning(tmp_path):

@@ -146,6 +146,22 @@ def _lines(ax, fig, rows, x, y, grid, metric, kind, logs):
     ax.grid(alpha=0.3)
 
 
+def title_notes(campaign, rows, x, y):
+    """What the summary's title says of its cases: counts, failures, unsteady ones, and the
+    varied parameters the axes x, y do not tell apart."""
+    failed = sum(r.get('status') != 'ok' for r in rows)
+    unsteady = sum(r.get('steady') is False for r in rows)
+    notes = [f"{len(rows)} cases", f"{failed} failed (red ×)"]
+    if unsteady:
+        notes.append(f"{unsteady} without a steady state (hatched)")
+    others = [n for n in campaign.variable_names if n not in (x, y)
+              and len({repr(r.get(n)) for r in rows}) > 1]
+    if others:   # a third varied parameter: its cases lie on top of each other here
+        notes.append(f"{', '.join(others)} also varied, not told apart here (the table has "
+                     f"them; summary: x, y picks the axes)")
+    return notes
+
+
 def plot_summary(campaign, rows, path):
     """Draw the summary figure of ``rows`` (the table's rows) to ``path``; returns ``path``, or
     None when there is nothing to draw (no case, or no numeric parameter)."""
@@ -163,15 +179,11 @@ def plot_summary(campaign, rows, path):
         if grid is not None:
             _map(axes[0, k], fig, rows, x, y, *grid, metric, campaign.kind)
         _lines(axes[-1, k], fig, rows, x, y, grid, metric, campaign.kind, logs)
-    failed = sum(r.get('status') != 'ok' for r in rows)
-    unsteady = sum(r.get('steady') is False for r in rows)
-    notes = [f"{len(rows)} cases", f"{failed} failed (red ×)"]
-    if unsteady:
-        notes.append(f"{unsteady} without a steady state (hatched)")
-    fig.suptitle(f"{campaign.name}: " + ', '.join(notes))
+    notes = title_notes(campaign, rows, x, y)
+    fig.suptitle(f"{campaign.name}: " + ', '.join(notes), fontsize=10 if len(notes) > 3 else None)
     fig.savefig(path, dpi=DPI)
     plt.close(fig)
     return path
 
 
-__all__ = ['plot_summary']
+__all__ = ['plot_summary', 'title_notes']
