@@ -20,8 +20,11 @@ single cases, and a single case that does so twice over is recorded as failed ``
 task's rows are collected exactly once (one future per task, released when read) and the table
 holds one row per case id.
 """
+import contextlib
 import itertools
 import os
+import signal
+import threading
 import time
 import uuid
 from dataclasses import dataclass
@@ -85,6 +88,32 @@ class WarmKernels(WorkerPlugin):
         _warm()
 
 
+class QuietInterrupt(WorkerPlugin):
+    """Worker plugin of our own local cluster: its workers ignore SIGINT. Ctrl-C in a terminal
+    reaches the whole process group; the client stops the campaign and closes the cluster, and
+    each worker would otherwise print a KeyboardInterrupt traceback first. (Not for workers
+    the user started: their Ctrl-C is theirs.)"""
+    name = 'cvt_ros-quiet-interrupt'
+
+    def setup(self, worker):
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+@contextlib.contextmanager
+def _sigint_ignored():
+    """SIGINT ignored while worker processes are spawned (they inherit it, and Python keeps an
+    inherited SIG_IGN): a Ctrl-C before QuietInterrupt's setup finds them quiet too."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 @dataclass
 class ClusterHandle:
     client: object
@@ -129,10 +158,11 @@ def open_cluster(scheduler=None, workers=None, dashboard=':8787', timeout=60.0):
             # ~0.25 s pays one round trip (~1 ms) of idle time
             with dask.config.set({'distributed.worker.profile.enabled': False,
                                   'distributed.scheduler.worker-saturation': 1.0}):
-                cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1,
-                                       threads_per_worker=1, processes=True,
-                                       dashboard_address=dashboard,
-                                       silence_logs=logging.ERROR)
+                with _sigint_ignored():
+                    cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1,
+                                           threads_per_worker=1, processes=True,
+                                           dashboard_address=dashboard,
+                                           silence_logs=logging.ERROR)
             client = Client(cluster)
     except (OSError, TimeoutError, RuntimeError) as exc:
         # (LocalCluster raises RuntimeError when it cannot start: e.g. a dashboard host that
@@ -150,6 +180,8 @@ def open_cluster(scheduler=None, workers=None, dashboard=':8787', timeout=60.0):
             client.wait_for_workers(workers or 1, timeout=timeout)
         _check_workers(client)
         client.register_plugin(WarmKernels(), name=WarmKernels.name)
+        if cluster is not None:
+            client.register_plugin(QuietInterrupt(), name=QuietInterrupt.name)
     except BaseException as exc:
         handle.close()
         if isinstance(exc, (SweepError, KeyboardInterrupt)):
