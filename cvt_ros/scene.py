@@ -34,14 +34,20 @@ class SceneError(InputFileError):
     """A scene file that cannot be used; the message says which file, key and why."""
 
 
-def scene_dirs():
-    """Where scene names are looked up: the source tree, then the installed share folder."""
-    dirs = [SCENES_DIR]
+def config_dirs(kind):
+    """Where names of shipped files of ``kind`` (scenes, scenarios, campaigns) are looked up:
+    the source tree's config/KIND, then the installed share folder's."""
+    dirs = [SCENES_DIR.parent / kind]
     # a ROS workspace (AMENT_PREFIX_PATH) or a plain pip install (data_files under sys.prefix)
     for prefix in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep) + [sys.prefix]:
         if prefix:
-            dirs.append(Path(prefix) / 'share' / 'cvt_ros' / 'config' / 'scenes')
+            dirs.append(Path(prefix) / 'share' / 'cvt_ros' / 'config' / kind)
     return [d for d in dirs if d.is_dir()]
+
+
+def scene_dirs():
+    """Where scene names are looked up: the source tree, then the installed share folder."""
+    return config_dirs('scenes')
 
 
 def available_scenes():

@@ -205,3 +205,12 @@ def test_cli_a_local_cluster_that_cannot_start_is_one_clear_error(tmp_path):
     assert proc.returncode == 2, proc.stderr
     assert 'Traceback' not in proc.stderr
     assert 'cannot start a local cluster (dashboard at no-such-host.invalid:8787)' in proc.stderr
+
+
+def test_a_shipped_campaign_by_name_from_any_folder(tmp_path, monkeypatch):
+    """As scenes and scenarios: `cvt-sim sweep conveyor_ratio_map` was 'No such file'."""
+    monkeypatch.chdir(tmp_path)
+    campaign = load_campaign('conveyor_ratio_map')
+    assert campaign.name == 'conveyor_ratio_map' and campaign.path.name == 'conveyor_ratio_map.yaml'
+    with pytest.raises(CampaignError, match='nowhere.yaml'):
+        load_campaign('nowhere.yaml')

@@ -46,7 +46,9 @@ def add_parser(sub):
                     'core by default, or an existing one (--scheduler). Writes a Parquet table '
                     'and a summary plot; resumable.',
         epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument('campaign', metavar='CAMPAIGN.yaml', help='campaign file')
+    p.add_argument('campaign', metavar='CAMPAIGN.yaml',
+                   help='campaign file, or a shipped campaign by name (conveyor_ratio_map, '
+                        'conveyor_pi_gains, conveyor_shaft_stiffness)')
     p.add_argument('--out', required=True, metavar='DIR',
                    help='output folder (created; holds the table, the plot, recordings)')
     p.add_argument('--scheduler', metavar='tcp://HOST:8786',

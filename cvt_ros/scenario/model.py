@@ -18,20 +18,17 @@ A scenario file (YAML; every key but ``scene``, ``duration`` and ``setpoint`` op
 
 Schedules: cvt_ros/scenario/schedule.py. Every error names the file, the key and the value.
 """
-import os
-import sys
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 from ..control.speed_pi import SpeedPIGains
 from ..physics.linkage import grashof_bound
-from ..scene import SceneError, load_scene
+from ..scene import SceneError, config_dirs, load_scene
 from ..yaml_file import InputFileError, read_yaml
 from .checks import number
 from .realism import ActuatorSpec, RealismError, SensorSpec, parse_actuator, parse_sensors
 from .schedule import Schedule, ScheduleError, parse_schedule
 
-SCENARIOS_DIR = Path(__file__).resolve().parent.parent.parent / 'config' / 'scenarios'
 KEYS = ('description', 'scene', 'overrides', 'duration', 'control_period', 'seed', 'setpoint',
         'load', 'crank_limits', 'sensors', 'actuator', 'controller')
 MAX_DURATION = 86400.0          # s
@@ -84,11 +81,7 @@ class Scenario:
 
 
 def scenario_dirs():
-    dirs = [SCENARIOS_DIR]
-    for prefix in os.environ.get('AMENT_PREFIX_PATH', '').split(os.pathsep) + [sys.prefix]:
-        if prefix:
-            dirs.append(Path(prefix) / 'share' / 'cvt_ros' / 'config' / 'scenarios')
-    return [d for d in dirs if d.is_dir()]
+    return config_dirs('scenarios')
 
 
 def available_scenarios():

@@ -18,11 +18,13 @@ file is one :class:`CampaignError` naming the file, the key, the value and the l
 expanded and checked as a whole (the Grashof bound, a scenario's schedules) by
 :mod:`cvt_ros.sweep.cases`.
 """
+import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from ..scenario.checks import number
 from ..scene import _yaml_number as yaml_number  # '1e-3' is a number, as ROS reads it
+from ..scene import config_dirs
 from ..yaml_file import read_yaml
 from .errors import CampaignError
 from .metrics import SCENARIO_METRICS, SCENE_METRICS, default_metrics
@@ -156,9 +158,22 @@ def _numbers(node):
     return yaml_number(node)
 
 
+def resolve_campaign(name):
+    """A path, or a shipped campaign's name (config/campaigns/NAME.yaml), as scenes and
+    scenarios are named; a missing file stays the path (read_yaml says it is missing)."""
+    path = Path(name)
+    if path.exists() or path.suffix in ('.yaml', '.yml') or os.sep in str(name):
+        return path
+    for d in config_dirs('campaigns'):
+        if (d / f"{name}.yaml").is_file():
+            return d / f"{name}.yaml"
+    return path
+
+
 def load_campaign(path):
-    """The checked :class:`Campaign` of a file. Raises CampaignError."""
-    path = Path(path)
+    """The checked :class:`Campaign` of a file or a shipped campaign's name. Raises
+    CampaignError."""
+    path = resolve_campaign(path)
     doc = read_yaml(path, CampaignError)
     text = path.read_text(encoding='utf-8')
     where = str(path)
