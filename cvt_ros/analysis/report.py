@@ -142,7 +142,8 @@ def format_run(analysis: RunAnalysis, cycles_shown: int | None = 10) -> str:
             eta = _fmt('{:8.3%}', v['efficiency'])
             if not physical('efficiency', v['efficiency']):
                 flags.add('efficiency')
-                eta += '!'
+                # digits enough to show it is out of range (100.000% would read as 100 %)
+                eta = f"{v['efficiency'] * 100.0:.9g}%!"
             lines.append('  ' + ' '.join(cell.rjust(9) for cell in [
                 f"{v['cycle']:9.0f}", f"{v['t_start']:9.4f}", f"{v['period'] * 1e3:9.3f}",
                 _fmt('{:9.5f}', v['ratio']), _fmt('{:9.3%}', v['ripple']),
