@@ -180,5 +180,9 @@ def test_a_catch_soon_after_a_release_is_located_not_found_late(method):
         result = sim.run(4.0, 1e-2)
         assert result.diagnostics['possible_missed_events'] == 0, result.diagnostics
         assert not any(s.kind == 'engage_impact' for s in result.switches)
+        # each catch placed where the slip is zero to the step's accuracy (a catch at the look's
+        # end, 0.18 rad/s below the rocker, would jump the speeds without an impact's books)
+        worst = max(abs(s.value) for s in result.switches if s.kind == 'engage')
+        assert worst < 1e-2, worst
         counts.add(sim.switch_count)
     assert len(counts) == 1 and counts.pop() > 4.0 * 24 * 3   # > 3 switches a crank turn

@@ -435,7 +435,9 @@ def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, 
             g1 = aux1[AUX_SLIP]
             if fire == CROSSING and g1 > guard_tolerance(mode, y, aux1, P):
                 # the true state at the located time has not reached the guard (the dense
-                # output's error at loose tolerances): not yet, go on from here
+                # output's error at loose tolerances): not yet, go on from here, armed (the
+                # slip is above its band: the crossing that follows is searched, not found late)
+                armed = True
                 project(t, y, mode, P, ACT)
                 for i in range(n):
                     K[0, i] = dytmp[i]

@@ -345,24 +345,26 @@ def split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arme
                 if tm >= 0.0:
                     fire = CROSSING
                     hi = tm
-            if fire == CROSSING:
-                # located on the true slip (the linkage's rocker speed, as the reset map sees
-                # it): the end values must bracket it there too
-                tol_s = max(1e-13, 8.0 * 2.2e-16 * abs(tau)) / hs
-                gt_hi = true_split_slip(exact, hi, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb,
-                                        ztmp)
-                gt_lo = true_split_slip(exact, lo, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb,
-                                        ztmp)
-                if gt_hi < 0.0 < gt_lo:
-                    sigma = locate_root(True, exact, DOPRI5, t, h, y, y_new, K, tau, hs, z, clock,
-                                        mode, P, ACT, Cv, lo, hi, gt_lo, gt_hi, tol_s, ycomb,
-                                        dytmp, auxtmp, ztmp, counters)
-                elif gt_hi >= -gtol:
-                    fire = NO_EVENT   # a dip of the rocker speed's interpolant alone
-                    if hi == 1.0:
-                        g1 = gt_hi
-                else:
-                    sigma = lo if gt_lo <= 0.0 else hi
+        if fire == CROSSING:
+            # located on the true slip (the linkage's rocker speed, as the reset map sees
+            # it): the end values must bracket it there too
+            tol_s = max(1e-13, 8.0 * 2.2e-16 * abs(tau)) / hs
+            gt_hi = true_split_slip(exact, hi, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb,
+                                    ztmp)
+            gt_lo = true_split_slip(exact, lo, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb,
+                                    ztmp)
+            if gt_hi < 0.0 < gt_lo:
+                sigma = locate_root(True, exact, DOPRI5, t, h, y, y_new, K, tau, hs, z, clock,
+                                    mode, P, ACT, Cv, lo, hi, gt_lo, gt_hi, tol_s, ycomb,
+                                    dytmp, auxtmp, ztmp, counters)
+            elif gt_hi >= -gtol:
+                fire = NO_EVENT   # a dip of the rocker speed's interpolant alone
+                if hi == 1.0:
+                    g1 = gt_hi
+            elif lo > 0.0 and gt_lo <= 0.0:
+                fire = NO_EVENT   # the true slip never left the band upwards: found late
+            else:
+                sigma = lo if gt_lo <= 0.0 else hi
         if fire == NO_EVENT and g1 < -gtol:
             fire = FOUND_LATE
         if fire != NO_EVENT:
