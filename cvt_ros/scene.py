@@ -45,6 +45,15 @@ def config_dirs(kind):
     return [d for d in dirs if d.is_dir()]
 
 
+def shipped_file(kind, name):
+    """config/KIND/NAME.yaml of the first of :func:`config_dirs` that has it, or None."""
+    for d in config_dirs(kind):
+        candidate = d / f"{name}.yaml"
+        if is_file(candidate):
+            return candidate
+    return None
+
+
 def scene_dirs():
     """Where scene names are looked up: the source tree, then the installed share folder."""
     return config_dirs('scenes')
@@ -65,10 +74,9 @@ def resolve(scene):
     if '\x00' not in name and len(name) < 4096 and os.path.exists(name):
         raise SceneError(f"{name}: not a regular file (a scene is a .yaml file)")
     if '/' not in name and os.sep not in name:
-        for d in scene_dirs():
-            candidate = d / f"{name}.yaml"
-            if is_file(candidate):
-                return candidate
+        found = shipped_file('scenes', name)
+        if found is not None:
+            return found
     shown = name if len(name) <= 120 else f"{name[:120]}… ({len(name)} characters)"
     raise SceneError(f"scene {shown!r} not found: not a file, and not one of "
                      f"{', '.join(available_scenes()) or '(no scenes installed)'}")

@@ -23,7 +23,7 @@ from pathlib import Path
 
 from ..control.speed_pi import SpeedPIGains
 from ..physics.linkage import grashof_bound
-from ..scene import SceneError, config_dirs, load_scene
+from ..scene import SceneError, config_dirs, load_scene, shipped_file
 from ..yaml_file import InputFileError, read_yaml
 from .checks import number
 from .realism import ActuatorSpec, RealismError, SensorSpec, parse_actuator, parse_sensors
@@ -96,10 +96,9 @@ def resolve_scenario(name):
             return p
     except (OSError, ValueError):
         pass
-    for d in scenario_dirs():
-        candidate = d / f"{name}.yaml"
-        if candidate.is_file():
-            return candidate
+    found = shipped_file('scenarios', name)
+    if found is not None:
+        return found
     raise ScenarioError(f"scenario {str(name)!r} not found: not a file, and not one of "
                         f"{', '.join(available_scenarios()) or '(none installed)'}")
 

@@ -111,13 +111,11 @@ class ScenarioRun:
     @cached_property
     def metrics(self):
         """Run-level metrics by name (rise_time, overshoot, settling_time, ...)."""
-        if len(self.t) < 3:
-            return dict.fromkeys(METRICS, math.nan)
-        return summarize_steps(self.steps, self.trace(), self._grid(), self.setpoint)
+        return self.metrics_since(None)
 
     def metrics_since(self, t):
         """Run-level metrics over the steps from ``t`` [s] on (the whole-run figures over
-        [t, end]): e.g. the set-point steps without the start-up from rest."""
+        [t, end]): e.g. the set-point steps without the start-up from rest; None: all."""
         if len(self.t) < 3:
             return dict.fromkeys(METRICS, math.nan)
         return summarize_steps(self.steps, self.trace(), self._grid(), self.setpoint, since=t)

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from ..scenario.checks import number
 from ..scene import _yaml_number as yaml_number  # '1e-3' is a number, as ROS reads it
-from ..scene import config_dirs
+from ..scene import shipped_file
 from ..yaml_file import read_yaml
 from .errors import CampaignError
 from .metrics import SCENARIO_METRICS, SCENE_METRICS, default_metrics
@@ -164,10 +164,7 @@ def resolve_campaign(name):
     path = Path(name)
     if path.exists() or path.suffix in ('.yaml', '.yml') or os.sep in str(name):
         return path
-    for d in config_dirs('campaigns'):
-        if (d / f"{name}.yaml").is_file():
-            return d / f"{name}.yaml"
-    return path
+    return shipped_file('campaigns', name) or path
 
 
 def load_campaign(path):

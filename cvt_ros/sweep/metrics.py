@@ -124,7 +124,7 @@ def scene_metrics(values, result, duration, window, names):
 def scenario_metrics(run, energy, names, since=0.0):
     """Figures by name of one scenario run (a ScenarioRun) and the plant's energy balance;
     ``since`` [s]: the steps from then on, and the whole-run figures over that span."""
-    metrics = run.metrics_since(since) if since else run.metrics
+    metrics = run.metrics_since(since)
     out = {name: float(metrics.get(name, math.nan)) for name in names
            if name != 'energy_residual'}
     if 'energy_residual' in names:
