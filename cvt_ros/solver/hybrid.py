@@ -103,7 +103,6 @@ from .steppers import (
 from .witness import (
     N_GUARD,
     N_POLY,
-    SAMPLES,
     guard_polynomial,
     guard_value,
     lowest_point,
@@ -173,13 +172,11 @@ def _left_band_upwards(method, t, h, y, y_new, K, mode, P, ACT, clock, g1, gtol,
     after the guard's highest point in the step if the true guard stood above the band there,
     else −1. (The guard's polynomial picks the point; with the twist rule it is the twist's.)"""
     guard_polynomial(method, h, y, y_new, K, mode, P, C, G)
-    best_x = -1.0
-    best = -math.inf
-    for j in range(1, SAMPLES):
-        v = guard_value(G, j / SAMPLES)
-        if v > best:
-            best = v
-            best_x = j / SAMPLES
+    for k in range(N_POLY + 1):   # the highest point of the guard: the lowest of −guard
+        G[k] = -G[k]              # (its exponential term's amplitude too; the rate stays)
+    best_x, _ = lowest_point(G, -gtol)
+    if best_x < 0.0:
+        return -1.0
     gt = guard_at(method, best_x, t, h, y, y_new, K, mode, P, ACT, ytmp, dytmp, auxtmp, counters)
     if not gt > gtol:
         return -1.0
