@@ -60,6 +60,17 @@ def guard_value(G, x):
     return v
 
 
+@inline_kernel
+def guard_rate(G, x):
+    """dG/dθ at θ = x: the polynomial's and its exponential term's."""
+    d = 0.0
+    for k in range(N_POLY - 1, 0, -1):
+        d = d * x + k * G[k]
+    if G[N_POLY] != 0.0:
+        d -= G[N_POLY] * G[N_POLY + 1] * math.exp(-G[N_POLY + 1] * x)
+    return d
+
+
 @kernel
 def guard_polynomial(method, h, y0, y1, K, mode, P, C, G):
     """Coefficients G of the clutch guard over the last step as a polynomial in θ ∈ [0, 1];
