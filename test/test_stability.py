@@ -163,6 +163,15 @@ def check_physical(sim, result):
 @settings(max_examples=EXAMPLES, deadline=None, print_blob=True,
           suppress_health_check=[HealthCheck.too_slow])
 @given(values=machines())
+# was a defect: a heavy rigid output behind a crank at 99 % of the Grashof bound takes most of
+# the crank's energy within a millisecond of the engagement; RK4 at 0.2 ms lost 2 % of it to the
+# energy balance. The real-time step now also resolves the linkage's inertia rate (fastest_rate)
+@example(values={
+    'linkage.crank_length': 0.09899999999999999, 'inertia.motor': 0.0301973834223185,
+    'inertia.rocker': 0.006737946999085467, 'inertia.clutch_driven': 0.0,
+    'inertia.output': 1.0, 'shaft.stiffness': math.inf, 'shaft.damping': 0.0,
+    'load.torque': 0.0, 'load.viscous': 0.0, 'load.quadratic': 0.0, 'motor.model': 'induction',
+    'motor.torque': 2.0, 'motor.speed': 50.0, 'initial.crank_speed': 100.0})
 def test_every_mode_stays_physical_over_valid_parameters(mode, values):
     sim, result = run(values, mode)
     check_physical(sim, result)

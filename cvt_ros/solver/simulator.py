@@ -18,6 +18,7 @@ from ..physics.linkage import (
     check_crank_length,
     check_crank_lengths_fit,
     grashof_bound,
+    inertia_rate_factor,
     kinematics,
     rocker_angle,
 )
@@ -127,6 +128,14 @@ def fastest_rate(values):
             inv = 1.0 / J4 + 1.0 / (J2 + J3)    # engaged twist mode, bounded above
             rates.append(math.sqrt(c * inv) + kd * inv)
     rates.append(values['load.viscous'] / J4)
+    # the crank's own rate from the linkage's varying inertia, with what an engaged clutch
+    # drives rigidly (the output too behind a rigid shaft); at the scene's crank length (a
+    # crank commanded towards the Grashof bound at run time is not re-counted)
+    j_driven = J2 + J3 + (J4 if not math.isfinite(c) else 0.0)
+    rates.append(max(rates[:2]) * inertia_rate_factor(
+        values['linkage.crank_length'], values['linkage.rocker_length'],
+        values['linkage.coupler_length'], values['linkage.pivot_distance'],
+        float(values['linkage.assembly_mode']), values['inertia.motor'], j_driven))
     return max(rates)
 
 
