@@ -206,7 +206,8 @@ PHYSICS_PARAMETERS = (
           'integrate: on its own adaptive clock (always so for a quadratic load)',
           choices=('exact', 'integrate')),
     _spec('solver.refine_step', 'auto', '-',
-          'auto: rk4 sub-steps below its stability limit for the stiffest mode (h·λmax ≤ 0.5); '
+          'auto: rk4 sub-steps until h·λmax ≤ 0.5, λmax the fastest rate it must resolve (shaft '
+          'modes, crank speed, the linkage\'s inertia rate); '
           'off: exactly solver.fixed_step (for stability experiments: may blow up)',
           choices=('auto', 'off')),
     _spec('solver.fixed_step', 2e-4, 's',
