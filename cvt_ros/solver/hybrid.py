@@ -36,6 +36,7 @@ from ..physics.drives import next_actuator_break
 from ..physics.dynamics import engage_with_impact, finite_state, project, rhs
 from ..physics.layout import (
     AUX_SLIP,
+    AUX_SLIP_RATE,
     DISENGAGED,
     ENGAGED,
     N_AUX,
@@ -192,6 +193,39 @@ def _left_band_upwards(method, t, h, y, y_new, K, mode, P, ACT, clock, g1, gtol,
     tol_theta = max(1e-13, 8.0 * 2.2e-16 * abs(t)) / h
     return locate_root(False, False, method, t, h, y, y_new, K, t, h, y, clock, mode, P, ACT, y,
                        best_x, 1.0, gt, g1, tol_theta, ytmp, dytmp, auxtmp, ytmp, counters)
+
+
+@kernel
+def _creep_onto_catch(t, t_end, y, mode, P, ACT, clock, K, y_new, ytmp, aux1, dytmp, auxtmp, rtol,
+                      atol, grid, out, counters):
+    """A catch located by the open output's slip watch that the re-taken step reached short of
+    (the slip still above its band, by the input's dense output error): short true steps of the
+    whole system forward, by Newton on the true slip's rate, overshooting as SETTLE_OVERSHOOT.
+    y is at t; dytmp, aux1 hold f(t, y). Returns (t, slip) with y, dytmp, aux1 there."""
+    g = aux1[AUX_SLIP]
+    n = y.shape[0]
+    for _ in range(SETTLE_STEPS):
+        rate = aux1[AUX_SLIP_RATE]
+        if not rate < 0.0:
+            break
+        dt = SETTLE_OVERSHOOT * g / -rate
+        if not (t + dt > t and t + dt <= t_end):
+            break
+        for i in range(n):
+            K[0, i] = dytmp[i]
+        take_step(DOPRI5, FULL, t, y, dt, mode, P, ACT, K, y_new, ytmp, aux1, rtol, atol, ERR_FULL,
+                  counters)
+        if sample_due(grid, counters, t + dt):
+            emit_samples(False, False, DOPRI5, t, dt, y, y_new, K, t, dt, y, clock, mode, P, ACT,
+                         grid, out, counters, t + dt, ytmp, ytmp, dytmp, auxtmp)
+        t += dt
+        for i in range(n):
+            y[i] = y_new[i]
+            dytmp[i] = K[6, i]
+        g = aux1[AUX_SLIP]
+        if g <= guard_tolerance(mode, y, aux1, P):
+            break
+    return t, g
 
 
 @inline_kernel
@@ -451,6 +485,9 @@ def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, 
             rhs(t, y, mode, P, ACT, dytmp, aux1)
             counters[C_RHS] += 1
             g1 = aux1[AUX_SLIP]
+            if fire == CROSSING and g1 > guard_tolerance(mode, y, aux1, P):
+                t, g1 = _creep_onto_catch(t, t_end, y, mode, P, ACT, clock, K, y_new, ytmp, aux1,
+                                          dytmp, auxtmp, rtol, atol, grid, out, counters)
             if fire == CROSSING and g1 > guard_tolerance(mode, y, aux1, P):
                 # the true state at the located time has not reached the guard (the dense
                 # output's error at loose tolerances): not yet, go on from here, armed (the
