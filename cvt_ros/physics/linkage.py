@@ -69,20 +69,20 @@ def check_crank_lengths_fit(lengths, rocker_length, coupler_length, pivot_distan
 
 
 def inertia_rate_factor(a, b, d, h, sigma, j_crank, j_driven, samples=720):
-    """max over a crank turn of ½·|d ln J_eff/dφ1| for J_eff = J1 + Jd·u² (the crank's inertia
-    and what the rocker drives, reflected). The crank's equation J_eff·ω1' = M1 − ½·J_eff'·ω1²
-    makes ω1'/ω1 = −½·(d ln J_eff/dφ1)·ω1 from the linkage alone: times the crank speed, a rate
-    [1/s] that a fixed step must resolve. At most 1.4 for the shipped scenes (near_grashof;
-    their shaft modes are faster still); 43 for a heavy rigid output (J4 = 33·J1) behind a
-    crank at 99 % of the Grashof bound, where the crank hands most of its energy to the output
-    within a millisecond of the engagement (RK4 at 0.2 ms: 2 % of it lost to the energy
-    balance; at the 73 µs this rate asks for, 1e-4)."""
+    """max over a crank turn of |d ln J_eff/dφ1| for J_eff = J1 + Jd·u² (the crank's inertia and
+    what the rocker drives, reflected): times the crank speed, the rate [1/s] at which the
+    crank's effective inertia changes, which a fixed step must resolve (the crank's equation
+    J_eff·ω1' = M1 − ½·J_eff'·ω1² gives ω1'/ω1 = −½·(d ln J_eff/dφ1)·ω1 from the linkage alone).
+    At most 2.7 for the shipped scenes (near_grashof; their shaft modes are faster still); 87
+    for a heavy rigid output (J4 = 33·J1) behind a crank at 99 % of the Grashof bound, where the
+    crank hands most of its energy to the output within a millisecond of the engagement (RK4 at
+    0.2 ms lost 2 % of it to the energy balance)."""
     if a == 0.0 or j_driven == 0.0:
         return 0.0
     worst = 0.0
     for k in range(samples):
         _, _, u, up, _, _, _ = kinematics(2.0 * math.pi * k / samples, a, b, d, h, sigma)
-        worst = max(worst, abs(j_driven * u * up) / (j_crank + j_driven * u * u))
+        worst = max(worst, abs(2.0 * j_driven * u * up) / (j_crank + j_driven * u * u))
     return worst
 
 
