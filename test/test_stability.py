@@ -180,6 +180,21 @@ def check_physical(sim, result):
     'shaft.stiffness': math.inf, 'shaft.damping': 0.0, 'load.torque': 0.0, 'load.viscous': 0.0,
     'load.quadratic': 0.0, 'motor.model': 'constant_torque', 'motor.torque': 2.0,
     'motor.speed': 50.0, 'initial.crank_speed': 146.0})
+# was a defect of the first version of the settled switches (hybrid.SETTLE_OVERSHOOT): a massless
+# damped node's catch, located on an interpolant that does not follow its relaxation, fell short
+# by 0.04 rad/s and Newton carried it to an engagement at slip −0.01 (found by 1000 examples)
+@example(values={
+    'linkage.crank_length': 0.015625, 'inertia.motor': math.exp(-3.0),
+    'inertia.rocker': math.exp(-7.0), 'inertia.clutch_driven': 0.0, 'inertia.output': 1.0,
+    'shaft.stiffness': math.exp(4.75), 'shaft.damping': 1.0, 'load.torque': 2.0,
+    'load.viscous': 0.0, 'load.quadratic': 0.0, 'motor.model': 'induction', 'motor.torque': 2.0,
+    'motor.speed': 50.0, 'initial.crank_speed': 100.0})
+@example(values={
+    'linkage.crank_length': 0.015625, 'inertia.motor': math.exp(-2.0),
+    'inertia.rocker': math.exp(-5.0), 'inertia.clutch_driven': 0.0, 'inertia.output': 1.0,
+    'shaft.stiffness': math.exp(5.0), 'shaft.damping': 1.0, 'load.torque': 1.0,
+    'load.viscous': 0.0, 'load.quadratic': 0.0, 'motor.model': 'induction', 'motor.torque': 2.0,
+    'motor.speed': 50.0, 'initial.crank_speed': 100.0})
 def test_every_mode_stays_physical_over_valid_parameters(mode, values):
     sim, result = run(values, mode)
     check_physical(sim, result)

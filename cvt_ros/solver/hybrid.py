@@ -125,6 +125,10 @@ ERR_OLD_START = 1e-4
 # were not short), instead of a whole new step that finds the root again at its very start.
 SETTLE_STEPS = 3
 SETTLE_OVERSHOOT = 1.25
+# Only a landing that fell short by a dense output's error is settled (5e4 bands at most on the
+# shipped scenes); one further off (a massless node's relaxation, which the interpolant does
+# not follow) is left to a new step, as before
+SETTLE_BANDS = 1e5
 
 
 @kernel
@@ -200,10 +204,15 @@ def _creep_onto_catch(t, t_end, y, mode, P, ACT, clock, K, y_new, ytmp, aux1, dy
                       atol, grid, out, counters):
     """A catch located by the open output's slip watch that the re-taken step reached short of
     (the slip still above its band, by the input's dense output error): short true steps of the
-    whole system forward, by Newton on the true slip's rate, overshooting as SETTLE_OVERSHOOT.
-    y is at t; dytmp, aux1 hold f(t, y). Returns (t, slip) with y, dytmp, aux1 there."""
+    whole system forward, by Newton on the true slip's rate, overshooting as SETTLE_OVERSHOOT;
+    a landing further past zero than the first one fell short is not taken (the run goes on
+    from the last short one as before). y is at t; dytmp, aux1 hold f(t, y). Returns (t, slip)
+    with y, dytmp, aux1 there."""
     g = aux1[AUX_SLIP]
+    g_first = g
     n = y.shape[0]
+    if g > SETTLE_BANDS * guard_tolerance(mode, y, aux1, P):
+        return t, g
     for _ in range(SETTLE_STEPS):
         rate = aux1[AUX_SLIP_RATE]
         if not rate < 0.0:
@@ -215,6 +224,10 @@ def _creep_onto_catch(t, t_end, y, mode, P, ACT, clock, K, y_new, ytmp, aux1, dy
             K[0, i] = dytmp[i]
         take_step(DOPRI5, FULL, t, y, dt, mode, P, ACT, K, y_new, ytmp, aux1, rtol, atol, ERR_FULL,
                   counters)
+        if aux1[AUX_SLIP] < -g_first:
+            rhs(t, y, mode, P, ACT, dytmp, aux1)   # too far past: stay, aux1 back at y
+            counters[C_RHS] += 1
+            break
         if sample_due(grid, counters, t + dt):
             emit_samples(False, False, DOPRI5, t, dt, y, y_new, K, t, dt, y, clock, mode, P, ACT,
                          grid, out, counters, t + dt, ytmp, ytmp, dytmp, auxtmp)
@@ -278,7 +291,7 @@ def _single_rate(method, kind, err_idx, t, h, clipped, t_end, y, y_new, K, mode,
                         theta = poly_root(G, 0.0, tm, ga, gm, tol_theta) if ga > 0.0 else tm
             if hi > 0.0:
                 fire = CROSSING
-                settle = True
+                settle = kind != MASSLESS
                 theta = _confirm_root(method, t, h, y, y_new, K, mode, P, ACT, clock, theta, hi,
                                       g0, ghi, gtol, tol_theta, ytmp, dytmp, auxtmp, counters)
         else:
@@ -297,7 +310,9 @@ def _single_rate(method, kind, err_idx, t, h, clipped, t_end, y, y_new, K, mode,
     if fire == NO_EVENT and g1 < -gtol:
         fire = FOUND_LATE  # the guard left its band on the wrong side: switch now
     if fire == CROSSING:
-        for _ in range(SETTLE_STEPS + 1):
+        short = -1.0     # θ of the last landing short of the band
+        g_first = 0.0    # how far the first one fell short: a landing may be as far past zero
+        for it in range(SETTLE_STEPS + 1):
             h_ev = theta * h
             # a true step to the event, not the interpolant: the state there is step-accurate
             take_step(method, kind, t, y, h_ev, mode, P, ACT, K, y_new, ytmp, aux1, rtol, atol,
@@ -305,15 +320,35 @@ def _single_rate(method, kind, err_idx, t, h, clipped, t_end, y, y_new, K, mode,
             if kind == MASSLESS:
                 _relax_twist(t + h_ev, h_ev, y, y_new, mode, P, ACT, aux1, dytmp, counters)
             g1, _ = clutch_guard(mode, y_new, K[6], aux1, P)
-            if not settle or g1 <= guard_tolerance(mode, y_new, aux1, P):
+            if not settle:
                 break
-            rate = guard_rate(G, theta)
-            if not rate < 0.0:
+            gtol1 = guard_tolerance(mode, y_new, aux1, P)
+            if g1 > gtol1:
+                if short < 0.0:
+                    if g1 > SETTLE_BANDS * gtol1:
+                        break
+                    g_first = g1
+                short = theta
+                rate = guard_rate(G, theta)
+                if it == SETTLE_STEPS or not rate < 0.0:
+                    break
+                theta_next = min(1.0, theta - SETTLE_OVERSHOOT * g1 / rate)
+                if not theta_next > theta:
+                    break
+                theta = theta_next
+            elif short >= 0.0 and g1 < -g_first:
+                # too far past (the polynomial's rate too flat there: a massless node's fast
+                # relaxation): back to the last short landing, and on from there by a new step
+                theta = short
+                h_ev = theta * h
+                take_step(method, kind, t, y, h_ev, mode, P, ACT, K, y_new, ytmp, aux1, rtol,
+                          atol, err_idx, counters)
+                if kind == MASSLESS:
+                    _relax_twist(t + h_ev, h_ev, y, y_new, mode, P, ACT, aux1, dytmp, counters)
+                g1, _ = clutch_guard(mode, y_new, K[6], aux1, P)
                 break
-            theta_next = min(1.0, theta - SETTLE_OVERSHOOT * g1 / rate)
-            if not theta_next > theta:
+            else:
                 break
-            theta = theta_next
         if sample_due(grid, counters, t + h_ev):
             emit_samples(False, False, method, t, h_ev, y, y_new, K, t, h_ev, y, clock, mode, P,
                          ACT, grid, out, counters, t + h_ev, ytmp, ytmp, dytmp, auxtmp)
