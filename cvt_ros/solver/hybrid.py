@@ -254,6 +254,19 @@ def _relax_twist(t1, h, y, y_new, mode, P, ACT, aux1, dytmp, counters):
     counters[C_RHS] += 1
 
 
+@inline_kernel
+def _retake_to(method, kind, err_idx, t, h_ev, y, y_new, K, mode, P, ACT, aux1, rtol, atol, ytmp,
+               dytmp, counters):
+    """A true step from (t, y) to the event at t + h_ev, not the interpolant: the state there
+    (y_new, K[6], aux1) is step-accurate. Returns the guard there."""
+    take_step(method, kind, t, y, h_ev, mode, P, ACT, K, y_new, ytmp, aux1, rtol, atol, err_idx,
+              counters)
+    if kind == MASSLESS:
+        _relax_twist(t + h_ev, h_ev, y, y_new, mode, P, ACT, aux1, dytmp, counters)
+    g1, _ = clutch_guard(mode, y_new, K[6], aux1, P)
+    return g1
+
+
 @kernel
 def _single_rate(method, kind, err_idx, t, h, clipped, t_end, y, y_new, K, mode, P, ACT, clock,
                  armed, g0, aux1, rtol, atol, grid, out, counters, ytmp, dytmp, auxtmp, C, G):
@@ -314,12 +327,8 @@ def _single_rate(method, kind, err_idx, t, h, clipped, t_end, y, y_new, K, mode,
         g_first = 0.0    # how far the first one fell short: a landing may be as far past zero
         for it in range(SETTLE_STEPS + 1):
             h_ev = theta * h
-            # a true step to the event, not the interpolant: the state there is step-accurate
-            take_step(method, kind, t, y, h_ev, mode, P, ACT, K, y_new, ytmp, aux1, rtol, atol,
-                      err_idx, counters)
-            if kind == MASSLESS:
-                _relax_twist(t + h_ev, h_ev, y, y_new, mode, P, ACT, aux1, dytmp, counters)
-            g1, _ = clutch_guard(mode, y_new, K[6], aux1, P)
+            g1 = _retake_to(method, kind, err_idx, t, h_ev, y, y_new, K, mode, P, ACT, aux1, rtol,
+                            atol, ytmp, dytmp, counters)
             if not settle:
                 break
             gtol1 = guard_tolerance(mode, y_new, aux1, P)
@@ -339,13 +348,9 @@ def _single_rate(method, kind, err_idx, t, h, clipped, t_end, y, y_new, K, mode,
             elif short >= 0.0 and g1 < -g_first:
                 # too far past (the polynomial's rate too flat there: a massless node's fast
                 # relaxation): back to the last short landing, and on from there by a new step
-                theta = short
-                h_ev = theta * h
-                take_step(method, kind, t, y, h_ev, mode, P, ACT, K, y_new, ytmp, aux1, rtol,
-                          atol, err_idx, counters)
-                if kind == MASSLESS:
-                    _relax_twist(t + h_ev, h_ev, y, y_new, mode, P, ACT, aux1, dytmp, counters)
-                g1, _ = clutch_guard(mode, y_new, K[6], aux1, P)
+                h_ev = short * h
+                g1 = _retake_to(method, kind, err_idx, t, h_ev, y, y_new, K, mode, P, ACT, aux1,
+                                rtol, atol, ytmp, dytmp, counters)
                 break
             else:
                 break

@@ -117,7 +117,8 @@ def fastest_rate(values):
     c = math.inf if values['model.fidelity'] == 'rigid_shaft' else values['shaft.stiffness']
     kd = values['shaft.damping']
     J2, J3, J4 = values['inertia.rocker'], values['inertia.clutch_driven'], values['inertia.output']
-    rates = [abs(values['initial.crank_speed']), values['motor.synchronous_speed']]
+    crank_speed = max(abs(values['initial.crank_speed']), values['motor.synchronous_speed'])
+    rates = [crank_speed]
     if math.isfinite(c):
         if J3 > 0.0:
             inv = 1.0 / J3 + 1.0 / J4           # disengaged J3–J4 mode (eq. 12)
@@ -134,7 +135,7 @@ def fastest_rate(values):
     # near the Grashof bound); at the scene's crank length (a crank commanded towards the
     # bound at run time is not re-counted)
     j_driven = J2 + J3 + (J4 if not math.isfinite(c) else 0.0)
-    rates.append(max(rates[:2]) * inertia_rate_factor(
+    rates.append(crank_speed * inertia_rate_factor(
         values['linkage.crank_length'], values['linkage.rocker_length'],
         values['linkage.coupler_length'], values['linkage.pivot_distance'],
         float(values['linkage.assembly_mode']), values['inertia.motor'], j_driven))
