@@ -19,7 +19,10 @@ Cases (each ``cvt_node`` in its own process and ROS domain, discovery limited to
   instead of an executor pass per sample, and reads the samples' bytes
   (``interface.JointStateDecoder``) instead of rclpy's message objects. Beside them the floor:
   the same round trips between two rclpy processes that only bounce a Float64 (no device, no
-  controller law).
+  controller law). Each controller runs twice: as the scheduler places the two processes, and
+  with both on one CPU (``taskset -c N``; in lockstep one of them works at a time, and a hand-over
+  within one CPU is a context switch where across two it is an interrupt that wakes the other —
+  on a virtual machine the costlier of the two, docs/lockstep.md).
 * ``fast``: ``time_mode fast`` at 1 kHz and 100 Hz publishing, a subscriber to joint_states and
   /clock in another process; simulated s per wall s and the node's CPU (share of one core).
 * ``realtime``: 1 kHz, 10 s (``--seconds`` × 2): share of periods published on time (less than
@@ -69,16 +72,27 @@ def _cpu_s(pid):
     return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
-class Node:
-    """``cvt_node`` with ``parameters`` in its own process and domain."""
+def _on_cpu(cpu):
+    """A Popen preexec_fn that runs the child on one CPU (``taskset -c cpu``), or None."""
+    return None if cpu is None else (lambda: os.sched_setaffinity(0, {cpu}))
 
-    def __init__(self, parameters, scene='conveyor'):
+
+def lockstep_cpu():
+    """The CPU the pinned lockstep cases share: the last this process may run on."""
+    return max(os.sched_getaffinity(0))
+
+
+class Node:
+    """``cvt_node`` with ``parameters`` in its own process and domain (on ``cpu`` alone if
+    given)."""
+
+    def __init__(self, parameters, scene='conveyor', cpu=None):
         self.domain = _domain()
         cmd = [sys.executable, '-m', 'cvt_ros.device', '--scene', scene, '--ros-args']
         for key, value in parameters.items():
             cmd += ['-p', f'{key}:={value}']
         self.proc = subprocess.Popen(cmd, env=_env(self.domain), stdout=subprocess.DEVNULL,
-                                     stderr=subprocess.DEVNULL)
+                                     stderr=subprocess.DEVNULL, preexec_fn=_on_cpu(cpu))
 
     def cpu(self):
         return _cpu_s(self.proc.pid)
@@ -227,10 +241,11 @@ def controller_main(argv):
     return 0
 
 
-def lockstep(seconds, period, lean):
-    """Round trips node ↔ controller process for ``seconds`` of simulation (``period`` [s])."""
+def lockstep(seconds, period, lean, cpu=None):
+    """Round trips node ↔ controller process for ``seconds`` of simulation (``period`` [s]);
+    ``cpu``: both processes on that one CPU."""
     node = Node({'time_mode': 'lockstep', 'steps_per_command': 1,
-                 'publish_rate': 1.0 / period})
+                 'publish_rate': 1.0 / period}, cpu=cpu)
     try:
         env = _env(node.domain, **({'RMW_FASTRTPS_PUBLICATION_MODE': 'SYNCHRONOUS'} if lean
                                    else {}))
@@ -238,7 +253,7 @@ def lockstep(seconds, period, lean):
         cmd = [sys.executable, '-m', 'cvt_ros.bench.node', '--controller', str(periods),
                repr(period), 'lean' if lean else 'docs']
         controller = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE,
-                                      stderr=subprocess.PIPE, text=True)
+                                      stderr=subprocess.PIPE, text=True, preexec_fn=_on_cpu(cpu))
         cpu0 = math.nan
         for line in controller.stdout:   # the node's CPU from the first round trip on
             if line.strip() == 'started':
@@ -304,15 +319,16 @@ def pingpong_main(argv):
     return 0
 
 
-def pingpong(rounds):
-    """Round trips of the DDS floor (``pingpong_main``) in a domain of its own."""
+def pingpong(rounds, cpu=None):
+    """Round trips of the DDS floor (``pingpong_main``) in a domain of its own (``cpu``: both
+    processes on that one CPU)."""
     env = _env(_domain(), RMW_FASTRTPS_PUBLICATION_MODE='SYNCHRONOUS')
     cmd = [sys.executable, '-m', 'cvt_ros.bench.node', '--pingpong']
     pong = subprocess.Popen(cmd + ['pong', '0'], env=env, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)
+                            stderr=subprocess.DEVNULL, preexec_fn=_on_cpu(cpu))
     try:
         ping = subprocess.run(cmd + ['ping', str(rounds)], env=env, capture_output=True,
-                              text=True, timeout=600)
+                              text=True, timeout=600, preexec_fn=_on_cpu(cpu))
     finally:
         try:
             pong.wait(30)
@@ -500,21 +516,28 @@ def run(options, out):
         out(f'| control period | controller | simulated s / wall s, best of {options.repeat} '
             f'(median) | round trip [µs] (best) | node CPU | controller CPU |')
         out('|---|---|---|---|---|---|')
+        cpu = lockstep_cpu()
         for period in (1e-3, 1e-2):
-            for lean in (False, True):
-                runs = [lockstep(max(s, 2.0) * (1 if period < 5e-3 else 5), period, lean)
-                        for _ in range(options.repeat)]
-                r = min(runs, key=lambda x: x['round_trip'])
-                who = ('lean rclpy node: its own wait set, raw samples, synchronous publication'
-                       if lean else 'docs/lockstep.md example (rclpy.spin)')
-                out(f"| {period * 1e3:g} ms | {who} | {_best_median(runs, 'rtf', '.2f')} | "
-                    f"{r['round_trip'] * 1e6:.0f} | {_pct(r['node_cpu'])} | "
-                    f"{_pct(r['controller_cpu'])} |")
-        runs = [pingpong(int(max(s, 2.0) * 1000)) for _ in range(options.repeat)]
-        r = min(runs, key=lambda x: x['round_trip'])
-        out(f"| (1 ms) | the floor: no device — two rclpy processes bounce a Float64, waiting as "
-            f"the lean controller does | {_best_median(runs, 'rtf', '.2f')} | "
-            f"{r['round_trip'] * 1e6:.0f} | – | {_pct(r['ping_cpu'])} (one side) |")
+            for pinned in (None, cpu):
+                for lean in (False, True):
+                    runs = [lockstep(max(s, 2.0) * (1 if period < 5e-3 else 5), period, lean,
+                                     pinned) for _ in range(options.repeat)]
+                    r = min(runs, key=lambda x: x['round_trip'])
+                    who = ('lean rclpy node: its own wait set, raw samples, synchronous '
+                           'publication' if lean else 'docs/lockstep.md example (rclpy.spin)')
+                    if pinned is not None:
+                        who += f'; both processes on one CPU (`taskset -c {pinned}`)'
+                    out(f"| {period * 1e3:g} ms | {who} | {_best_median(runs, 'rtf', '.2f')} | "
+                        f"{r['round_trip'] * 1e6:.0f} | {_pct(r['node_cpu'])} | "
+                        f"{_pct(r['controller_cpu'])} |")
+        for pinned in (None, cpu):
+            runs = [pingpong(int(max(s, 2.0) * 1000), pinned) for _ in range(options.repeat)]
+            r = min(runs, key=lambda x: x['round_trip'])
+            where = '' if pinned is None else f'; both on one CPU (`taskset -c {pinned}`)'
+            out(f"| (1 ms) | the floor: no device — two rclpy processes bounce a Float64, "
+                f"waiting as the lean controller does{where} | "
+                f"{_best_median(runs, 'rtf', '.2f')} | {r['round_trip'] * 1e6:.0f} | – | "
+                f"{_pct(r['ping_cpu'])} (one side) |")
         out('')
     if 'fast' in cases:
         out('### Fast mode (target ≥ 90 % of a core; ≥ 5× at 1 kHz publishing, ≥ 50× at '
