@@ -65,6 +65,13 @@ INTERFACE = {        # what `ros2 node info` must list: the node's whole interfa
 JOINTS = ['crank', 'rocker', 'clutch_output', 'output_shaft', 'crank_length']
 
 
+def _text(output):
+    """What a timed-out process wrote (bytes, str or None) as text."""
+    if isinstance(output, bytes):
+        return output.decode(errors='replace')
+    return output or ''
+
+
 class Ros2:
     """``ros2 ARGS`` in a domain: one at a time (``run``) or side by side (``run_all``)."""
 
@@ -80,11 +87,20 @@ class Ros2:
         machine's shared-memory port files: `RTPS_TRANSPORT_SHM Error ...`, DDS falls back to
         UDP). The `ros2 param` verbs give a new DDS participant a fixed 5 s to discover the
         node's parameter services (upstream); when they did not, nothing was set or read, and
-        the command is asked again."""
+        the command is asked again. A `ros2 topic pub` that published and then did not exit
+        (seen once in CI's loaded run: the CLI hung in its own shutdown after the keep-alive,
+        its message taken by the node) is stopped at the timeout and counts as done: what the
+        node did with the message is what the tests check."""
         for _ in range(ATTEMPTS):
-            proc = subprocess.run([sys.executable, str(ROS2), *args], env=self.env, text=True,
-                                  capture_output=True, timeout=TIMEOUT)
-            output = ''.join(line for line in (proc.stdout + proc.stderr).splitlines(True)
+            try:
+                proc = subprocess.run([sys.executable, str(ROS2), *args], env=self.env,
+                                      text=True, capture_output=True, timeout=TIMEOUT)
+                stdout, stderr = proc.stdout, proc.stderr
+            except subprocess.TimeoutExpired as exc:   # subprocess.run killed it
+                stdout, stderr = (_text(exc.stdout), _text(exc.stderr))
+                if args[:2] != ('topic', 'pub') or 'publishing #1:' not in stdout:
+                    raise
+            output = ''.join(line for line in (stdout + stderr).splitlines(True)
                              if not DDS_LOG.match(line))
             if 'Wait for service timed out waiting for parameter services' not in output:
                 break
