@@ -35,7 +35,7 @@ import numpy as np
 import yaml
 
 from ..device import domains
-from ..interface import STATE, joint_state_stamp_ns
+from ..interface import STATE, float64_cdr, joint_state_stamp_ns
 from ..solver.output import COL, N_COLUMNS
 from ..solver.simulator import SimulationError
 from .plants import plant_values
@@ -146,7 +146,6 @@ class DdsPlant:
 
         from .. import interface
         from ..device.subscription_wait import SubscriptionWait
-        self._Float64 = Float64
         self.context = Context()
         rclpy.init(context=self.context, domain_id=self.lease.domain)
         self.node = rclpy.create_node('cvt_scenario_harness', context=self.context)
@@ -169,6 +168,7 @@ class DdsPlant:
         self._sample_wait = SubscriptionWait(self.context, (clutch, state))
         self.crank_publisher = self.node.create_publisher(Float64, interface.CRANK_LENGTH_CMD,
                                                           interface.command_qos())
+        self._crank_handle = self.crank_publisher.handle
         self._live = False
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
@@ -184,6 +184,10 @@ class DdsPlant:
         switches, on their own wait set; else spin the executor: services, parameters)."""
         end = time.monotonic() + timeout
         while not done():
+            # a lockstep sample ends the wait at once: the processes and the clock are looked
+            # at when a wait did not bring what is waited for, not on every period
+            if samples_only and self._sample_wait.wait(0.05) and done():
+                return
             if self.proc.poll() is not None:
                 raise DdsError(f"cvt_node ended (exit {self.proc.returncode}) while waiting for "
                                f"{what}:\n{self.node_log()}")
@@ -192,9 +196,7 @@ class DdsPlant:
                                f"{self.controller_proc.returncode}) while waiting for {what}")
             if time.monotonic() > end:
                 raise DdsError(f"no {what} within {timeout:g} s:\n{self.node_log()}")
-            if samples_only:
-                self._sample_wait.wait(0.05)
-            else:
+            if not samples_only:
                 self.executor.spin_once(timeout_sec=0.05)
 
     def node_log(self, lines=15):
@@ -284,9 +286,10 @@ class DdsPlant:
 
     def step(self):
         if not self.external and (not self._live or self._command != self._sent):
-            msg = self._Float64()
-            msg.data = self._command
-            self.crank_publisher.publish(msg)   # lockstep: this advances one period
+            # lockstep: this advances one period (its CDR bytes, as the node publishes: no
+            # rclpy message object)
+            with self._crank_handle:
+                self._crank_handle.publish_raw(float64_cdr(self._command))
             self._sent = self._command
         return self._next_sample()
 
