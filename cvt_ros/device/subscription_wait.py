@@ -9,6 +9,8 @@ The device's run loop waits on its command topics this way, the scenario harness
 device's samples. A subscription waited on here must not also be served by an executor at the
 same time (the node puts its command subscriptions in a callback group the executor never runs).
 """
+import collections
+
 from rclpy.callback_groups import CallbackGroup
 from rclpy.exceptions import InvalidHandle
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
@@ -47,18 +49,23 @@ class SubscriptionWait:
         # what one wait holds: the context, the guard, then the subscriptions in order
         self._handles = (context.handle, self._guard) + tuple(s.handle for s in
                                                                self._subscriptions)
+        # taken, not yet handed over: a callback that raised leaves the rest for the next wait
+        self._taken = collections.deque()
 
     def wait(self, timeout_s):
         """Wait up to ``timeout_s`` (0: just look) for messages or ``wake()``; hand every message
         that arrived to its subscription's callback, subscription by subscription in the given
         order, at most ``take_limit`` each. True if any came; False on timeout, a wake-up or
         shutdown."""
+        if self._taken:   # a callback raised in the last wait: the messages after it first
+            self._hand_over()
+            return True
         # The handles are held (entered) for the wait and the takes, so that a node destroyed
         # meanwhile defers its destruction; entered one by one, not by an ExitStack: this runs
         # once per lockstep period and an ExitStack of four handles costs ~5 µs in itself
         handles = self._handles
         entered = 0
-        taken = []
+        taken = self._taken
         try:
             for handle in handles:
                 handle.__enter__()
@@ -85,13 +92,18 @@ class SubscriptionWait:
         finally:
             for handle in reversed(handles[:entered]):
                 handle.__exit__(None, None, None)
-        # the callbacks run with no handle held: one may destroy the node
-        for sub, message in taken:
+        self._hand_over()   # with no handle held: a callback may destroy the node
+        return True
+
+    def _hand_over(self):
+        """Each taken message to its subscription's callback, in order."""
+        taken = self._taken
+        while taken:
+            sub, message = taken.popleft()
             if sub._callback_type is Subscription.CallbackType.WithMessageInfo:
                 sub.callback(*message)
             else:
                 sub.callback(message[0])
-        return True
 
     def wake(self):
         """Interrupt a ``wait`` in another thread (a request, a setting, stop)."""
