@@ -346,8 +346,9 @@ def _single_rate(method, kind, err_idx, t, h, clipped, t_end, y, y_new, K, mode,
                     break
                 theta = theta_next
             elif short >= 0.0 and g1 < -g_first:
-                # too far past (the polynomial's rate too flat there: a massless node's fast
-                # relaxation): back to the last short landing, and on from there by a new step
+                # too far past (the polynomial's rate too flat there; a massless node, whose
+                # relaxation the polynomial does not follow, is never settled): back to the last
+                # short landing, and on from there by a new step
                 h_ev = short * h
                 g1 = _retake_to(method, kind, err_idx, t, h_ev, y, y_new, K, mode, P, ACT, aux1,
                                 rtol, atol, ytmp, dytmp, counters)
