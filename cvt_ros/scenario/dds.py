@@ -22,6 +22,8 @@ harness watches the newest samples and takes the whole trace from the node's rec
 ``realtime``: the node runs against the wall clock at that real-time factor (HIL rehearsal),
 the harness reacts to the newest sample.
 """
+import math
+import operator
 import os
 import signal
 import struct
@@ -42,10 +44,13 @@ from .plants import plant_values
 
 START_TIMEOUT_S = 300.0     # node start incl. compiling the kernels on a cold cache, loaded machine
 PERIOD_TIMEOUT_S = 30.0     # one lockstep period (a loaded machine stalls, it does not fail)
-_POS = [COL[c] for c in ('phi1', 'phi2', 'phi3', 'phi4')]
-_VEL = [COL[c] for c in ('omega1', 'omega2', 'omega3', 'omega4')]
-_EFF = [COL[c] for c in ('motor_torque', 'clutch_torque', 'shaft_torque', 'load_torque')]
-_COLUMNS = _POS + _VEL + _EFF
+# the columns a state sample fills, in this order (SampleRows.fill); the rest stay NaN
+_FILLED_COLUMNS = ('t', 'phi1', 'phi2', 'phi3', 'phi4', 'omega1', 'omega2', 'omega3', 'omega4',
+                   'engaged', 'twist', 'clutch_torque', 'crank_length', 'load_torque',
+                   'motor_torque', 'shaft_torque')
+assert [COL[c] for c in _FILLED_COLUMNS] == list(range(len(_FILLED_COLUMNS)))
+_FILLED = len(_FILLED_COLUMNS)
+WAIT_S = 0.05               # one wait for a sample; the liveness checks between waits
 
 
 class DdsError(SimulationError):
@@ -67,18 +72,31 @@ def write_params_file(path, params):
                                          sort_keys=True))
 
 
-def row_from_state(ns, position, velocity, effort, order, actuator):
-    """A sample row (COLUMNS, NaN where a message has no value) from a ``state`` JointState's
-    stamp [ns] and values (``interface.JointStateDecoder``); ``order``: the device's joints in
-    the message (``interface.joint_order``), ``actuator``: the crank_length joint's index."""
-    row = np.full(N_COLUMNS, np.nan)
-    row[COL['t']] = ns * 1e-9
-    row[_COLUMNS] = [values[i] for values in (position, velocity, effort) for i in order]
-    row[COL['twist']] = row[COL['phi3']] - row[COL['phi4']]
-    row[COL['engaged']] = 1.0 if row[COL['clutch_torque']] > 0.0 else 0.0
-    if actuator is not None:
-        row[COL['crank_length']] = position[actuator]
-    return row
+class SampleRows:
+    """``state`` samples → sample rows (COLUMNS, NaN where a message has no value).
+
+    ``fill(ns, position, velocity, effort)`` (a JointState's stamp [ns] and values, as
+    ``interface.JointStateDecoder`` gives them) writes one row into a buffer it owns and returns
+    it (the next call rewrites it: copy what you keep). One struct call, no numpy indexing:
+    in lockstep this runs between the sample's arrival and the next command, on the round
+    trip, right after a wake-up, where numpy's fancy indexing cost ~25 µs. ``order``: the
+    device's joints in the message (``interface.joint_order``), ``actuator``: the crank_length
+    joint's index (None: NaN)."""
+
+    def __init__(self, order, actuator):
+        self._joints = operator.itemgetter(*order)
+        self._actuator = actuator
+        self._bytes = bytearray(struct.pack(f'<{N_COLUMNS}d', *[math.nan] * N_COLUMNS))
+        self.row = np.frombuffer(self._bytes, dtype=np.float64)
+        self._pack = struct.Struct(f'<{_FILLED}d').pack_into
+
+    def fill(self, ns, position, velocity, effort):
+        phi1, phi2, phi3, phi4 = self._joints(position)
+        motor, clutch, shaft, load = self._joints(effort)
+        crank = math.nan if self._actuator is None else position[self._actuator]
+        self._pack(self._bytes, 0, ns * 1e-9, phi1, phi2, phi3, phi4, *self._joints(velocity),
+                   1.0 if clutch > 0.0 else 0.0, phi3 - phi4, clutch, crank, load, motor, shaft)
+        return self.row
 
 
 class DdsPlant:
@@ -172,8 +190,7 @@ class DdsPlant:
         self._live = False
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
-        self._order = None
-        self._actuator = None
+        self.rows = None           # SampleRows, from the first sample
         self._last_ns = -1
         self._command = None
         self._sent = None
@@ -186,7 +203,7 @@ class DdsPlant:
         while not done():
             # a lockstep sample ends the wait at once: the processes and the clock are looked
             # at when a wait did not bring what is waited for, not on every period
-            if samples_only and self._sample_wait.wait(0.05) and done():
+            if samples_only and self._sample_wait.wait(WAIT_S) and done():
                 return
             if self.proc.poll() is not None:
                 raise DdsError(f"cvt_node ended (exit {self.proc.returncode}) while waiting for "
@@ -207,37 +224,45 @@ class DdsPlant:
     def _next_sample(self):
         """The next sample on ``state`` newer than the last one (row, switches since): in
         lockstep the next period's; in realtime the newest (periods in between are skipped, as
-        a real-time controller skips what it was too slow for; ``skips_periods``)."""
-        self._spin_until(lambda: any(self._ns(m) > self._last_ns for m in self.samples),
-                         PERIOD_TIMEOUT_S if self._last_ns >= 0 else START_TIMEOUT_S,
-                         'sample from cvt_node', samples_only=True)
-        data = max(self.samples, key=self._ns)     # realtime: the newest; lockstep: the next
-        self.samples.clear()
+        a real-time controller skips what it was too slow for; ``skips_periods``). The row is
+        ``self.rows``' buffer: the next sample rewrites it."""
+        samples, stamp = self.samples, joint_state_stamp_ns
+        if not samples or stamp(samples[-1]) <= self._last_ns:
+            # lockstep: one wait brings the next period's sample (a single writer's samples
+            # arrive in order: the newest is the last); the liveness checks only if it did not
+            self._sample_wait.wait(WAIT_S)
+            if not samples or stamp(samples[-1]) <= self._last_ns:
+                self._spin_until(lambda: any(stamp(m) > self._last_ns for m in samples),
+                                 PERIOD_TIMEOUT_S if self._last_ns >= 0 else START_TIMEOUT_S,
+                                 'sample from cvt_node', samples_only=True)
+        data = samples[-1] if len(samples) == 1 else max(samples, key=stamp)
+        samples.clear()
         try:
             ns, position, velocity, effort = self._decoder.decode(data)
         except ValueError as exc:
             raise DdsError(f"a state message that is not a JointState: {exc}") from None
-        if self._order is None:
-            from ..interface import joint_order
-            names = self._decoder.names
-            self._order = joint_order(names)
-            hits = [i for i, n in enumerate(names) if n.endswith('crank_length')]
-            self._actuator = hits[0] if len(hits) == 1 else None
-            if self._order is None:
-                raise DdsError(f"state without the device's joints: {names}")
-        row = row_from_state(ns, position, velocity, effort, self._order, self._actuator)
+        if self.rows is None:
+            self.rows = self._sample_rows()
+        row = self.rows.fill(ns, position, velocity, effort)
         switches = []
-        for engaged in self.switch_states:
-            if self._engaged is not None and engaged != self._engaged:
-                switches.append((row[COL['t']], engaged))   # time: the period's end
-            self._engaged = engaged
-        self.switch_states.clear()
+        if self.switch_states:
+            for engaged in self.switch_states:
+                if self._engaged is not None and engaged != self._engaged:
+                    switches.append((row[0], engaged))   # time: the period's end
+                self._engaged = engaged
+            self.switch_states.clear()
         self._last_ns = ns
         return row, switches
 
-    @staticmethod
-    def _ns(data):
-        return joint_state_stamp_ns(data)
+    def _sample_rows(self):
+        """The rows of this node's samples (their joint layout, from the first one)."""
+        from ..interface import joint_order
+        names = self._decoder.names
+        order = joint_order(names)
+        if order is None:
+            raise DdsError(f"state without the device's joints: {names}")
+        hits = [i for i, n in enumerate(names) if n.endswith('crank_length')]
+        return SampleRows(order, hits[0] if len(hits) == 1 else None)
 
     # ------------------------------------------------------------------ plant protocol
     def start(self):
@@ -316,8 +341,10 @@ class DdsPlant:
                     switches.append((m.log_time_ns * 1e-9, state))
                 engaged = state
                 continue
-            rows.append(row_from_state(*self._decoder.decode(m.data), self._order,
-                                       self._actuator))
+            if self.rows is None:
+                self._decoder.decode(m.data)   # (the joint layout, if no sample was seen)
+                self.rows = self._sample_rows()
+            rows.append(self.rows.fill(*self._decoder.decode(m.data)).copy())
         return np.array(rows), switches, (commands if self.external else None)
 
     @staticmethod
@@ -349,4 +376,4 @@ class DdsPlant:
         self.tmp.cleanup()
 
 
-__all__ = ['DdsError', 'DdsPlant', 'node_parameters', 'row_from_state', 'write_params_file']
+__all__ = ['DdsError', 'DdsPlant', 'SampleRows', 'node_parameters', 'write_params_file']
