@@ -396,6 +396,19 @@ def float64_cdr(value: float) -> bytes:
     return _ENCAPSULATION + struct.pack('<d', float(value))
 
 
+_FLOAT64_LE = struct.Struct('<d')
+_FLOAT64_BE = struct.Struct('>d')
+
+
+def float64_value(data: bytes) -> float:
+    """The value of std_msgs/Float64 CDR bytes (either byte order: the encapsulation's low bit
+    says which, CDR or XCDR2 alike; the double right after the 4-byte header). ValueError for
+    bytes too short to be one."""
+    if len(data) < 12:
+        raise ValueError(f"{len(data)} bytes are not a std_msgs/Float64 (12 bytes)")
+    return (_FLOAT64_LE if data[1] & 1 else _FLOAT64_BE).unpack_from(data, 4)[0]
+
+
 # ---------------------------------------------------------------------------------- decoders
 @dataclass(frozen=True)
 class JointStateValues:

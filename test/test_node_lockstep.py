@@ -359,10 +359,14 @@ def test_bad_disturbance_files_and_joint_commands_are_refused_with_the_reason(de
             device.joint_commands.publish(msg)
             acked(device.joint_commands)
         wait_stamp(device, 4 * MS)
+        # bytes that are not a Float64 on crank_length_cmd (the node takes commands raw)
+        with device.crank.handle:
+            device.crank.handle.publish_raw(b'\x00\x01\x00\x00\x00\x00\x00\x00')   # (DDS pads to 4)
+        wait_stamp(device, 5 * MS)
     finally:
         set_params(device, steps_per_command=0)
     msgs = device.joints.messages(n0)
-    assert [stamp_ns(m) for m in msgs] == [k * MS for k in range(5)]
+    assert [stamp_ns(m) for m in msgs] == [k * MS for k in range(6)]
     assert all(m.position[4] == 0.04 and m.velocity[4] == 0.0 for m in msgs)
     # each reason is logged (a repeated one at most once a second), naming value and limit
     for text in ('refused joint_commands crank_length = nan m: not a finite number',
@@ -370,7 +374,8 @@ def test_bad_disturbance_files_and_joint_commands_are_refused_with_the_reason(de
                  "joint 'crank_length'",
                  'refused joint_commands crank_length = 0.2 m: outside the Grashof range; '
                  'limit [0, 0.1) m',
-                 "refused joint_commands = 0 positions: no position for joint 'crank_length'"):
+                 "refused joint_commands = 0 positions: no position for joint 'crank_length'",
+                 'refused crank_length_cmd = 8 bytes: 8 bytes are not a std_msgs/Float64'):
         assert wait_for(lambda text=text: text in device.proc.output(), 10.0), \
             (text, device.proc.output()[-2000:])
 

@@ -8,6 +8,7 @@ signals on a child process that records in real time, as the node does.
 import json
 import math
 import signal
+import struct
 import subprocess
 import sys
 
@@ -91,6 +92,13 @@ def test_fast_cdr_encoders_decode_like_rclpy_messages():
     assert deserialize_message(I.clock_cdr(5_000_000_001), Clock) == I.clock_msg(5_000_000_001)
     assert deserialize_message(I.bool_cdr(True), Bool) == I.clutch_msg(True)
     assert deserialize_message(I.float64_cdr(0.04), Float64) == I.command_msg(0.04)
+    # the node's raw command subscriptions: what rclpy serializes, and the other byte order
+    for value in (0.04, -1e300, math.inf):
+        assert I.float64_value(serialize_message(Float64(data=value))) == value
+    assert I.float64_value(b'\x00\x00\x00\x00' + struct.pack('>d', 0.07)) == 0.07
+    assert math.isnan(I.float64_value(I.float64_cdr(math.nan)))
+    with pytest.raises(ValueError, match='not a std_msgs/Float64'):
+        I.float64_value(I.float64_cdr(0.04)[:11])
     with pytest.raises(ValueError, match='joints'):
         I.decode_joint_state_cdr(I.joint_state_cdr(row, names=['a', 'b', 'c', 'd']))
 

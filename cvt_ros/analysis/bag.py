@@ -301,7 +301,7 @@ def _event_value(key: str, data: bytes) -> float | None:
         return float(data[4] != 0) if data[4] in (0, 1) else None
     if len(data) < 12:
         return None
-    value = struct.unpack_from('<d' if data[1] == 1 else '>d', data, 4)[0]
+    value = I.float64_value(data)
     return value if math.isfinite(value) else None
 
 

@@ -37,7 +37,7 @@ import numpy as np
 import yaml
 
 from ..device import domains
-from ..interface import STATE, float64_cdr, joint_state_stamp_ns
+from ..interface import STATE, float64_cdr, float64_value, joint_state_stamp_ns
 from ..solver.output import COL, N_COLUMNS
 from ..solver.simulator import SimulationError
 from .plants import plant_values
@@ -333,7 +333,7 @@ class DdsPlant:
             if m.log_time_ns > end_ns:
                 break
             if m.topic == '/crank_length_cmd':   # logged at the sample it answered
-                commands.append((m.log_time_ns * 1e-9, struct.unpack_from('<d', m.data, 4)[0]))
+                commands.append((m.log_time_ns * 1e-9, float64_value(m.data)))
                 continue
             if m.topic == '/clutch_engaged':
                 state = m.data[-1] == 1
