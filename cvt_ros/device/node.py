@@ -16,6 +16,7 @@ Device and publishes.
 """
 import gc
 import math
+import operator
 import sys
 import threading
 
@@ -58,6 +59,7 @@ _A = COL['crank_length']
 _FIELDS = ([COL[c] for c in interface.POSITION_COLUMNS] + [_A]
            + [COL[c] for c in interface.VELOCITY_COLUMNS] + [_A]
            + [COL[c] for c in interface.EFFORT_COLUMNS] + [_A])
+_GATHER = operator.itemgetter(*_FIELDS)   # (on the row's list: cheaper than numpy's take)
 _RATE_SLOT, _FORCE_SLOT = 9, 14
 
 
@@ -475,14 +477,14 @@ class CvtSimNode(Node):
         """state, joint_states and /clock of one period's end (``row``: its sample, the
         actuator's rate [m/s]), serialized once (CDR bytes), published through the publishers'
         handles (rclpy's publish() adds a type check per message and nothing else)."""
-        values = row.take(_FIELDS).tolist()
+        values = list(_GATHER(row.tolist()))
         ns = round(float(row[0]) * 1e9)   # = interface.stamp_ns(row[0])
         sec, nanosec = divmod(ns, 1_000_000_000)
         values[_RATE_SLOT] = crank_rate
         values[_FORCE_SLOT] = math.nan   # the actuator's force is not modelled
         data = self._encoder.encode(sec, nanosec, values)
-        clock = interface.clock_cdr(ns) if self._publish_clock else None
         joint_states, state, clock_handle = self._sample_handles
+        clock = None
         try:
             # state first: a lockstep controller waits on it, and a publication matched in
             # another process costs tens of µs (the wake-up of its Fast DDS listener)
@@ -490,7 +492,8 @@ class CvtSimNode(Node):
                 state.publish_raw(data)
             with joint_states:
                 joint_states.publish_raw(data)
-            if clock is not None:
+            if self._publish_clock:
+                clock = interface.clock_cdr(ns)
                 with clock_handle:
                     clock_handle.publish_raw(clock)
         except (InvalidHandle, RCLError) as exc:
@@ -500,8 +503,9 @@ class CvtSimNode(Node):
                 raise
         if self._recorder is not None:
             self._hand_to_recorder(self._topic['joint_states'], data, ns)
-            if clock is not None:
-                self._hand_to_recorder(self._topic['clock'], clock, ns)
+            if self._publish_clock:
+                # (made after state went out; made here if shutting down stopped that first)
+                self._hand_to_recorder(self._topic['clock'], clock or interface.clock_cdr(ns), ns)
         self._published_ns = ns
 
     def recording_reset(self):
