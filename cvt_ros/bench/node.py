@@ -16,8 +16,9 @@ Cases (each ``cvt_node`` in its own process and ROS domain, discovery limited to
   processes. Two controllers: the docs' example as written (rclpy.spin, a default Node), and the
   same law in a lean node (no parameter services, Fast DDS synchronous publication) whose thread
   waits on its state subscription itself (``cvt_ros.device.subscription_wait``, docs/lockstep.md)
-  instead of an executor pass per sample, and reads the samples' bytes
-  (``interface.JointStateDecoder``) instead of rclpy's message objects. Beside them the floor:
+  instead of an executor pass per sample, reads the samples' bytes
+  (``interface.JointStateDecoder``) and publishes its commands' (``interface.float64_cdr``)
+  instead of rclpy's message objects. Beside them the floor:
   the same round trips between two rclpy processes that only bounce a Float64 (no device, no
   controller law). Each controller runs twice: as the scheduler places the two processes, and
   with both on one CPU (``taskset -c N``; in lockstep one of them works at a time, and a hand-over
@@ -187,6 +188,8 @@ def controller_main(argv):
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Float64
 
+    from ..interface import float64_cdr
+
     class Controller(RclNode):
         def __init__(self):
             if lean:   # no parameter or type-description services: a smaller wait set
@@ -220,7 +223,8 @@ def controller_main(argv):
             self.count += 1
             if self.count > periods:
                 raise SystemExit
-            self.command_publisher.publish(Float64(data=crank))
+            # lean: the command's CDR bytes (Publisher.publish takes bytes; no message object)
+            self.command_publisher.publish(float64_cdr(crank) if lean else Float64(data=crank))
 
     rclpy.init()
     node = Controller()
@@ -523,8 +527,9 @@ def run(options, out):
                     runs = [lockstep(max(s, 2.0) * (1 if period < 5e-3 else 5), period, lean,
                                      pinned) for _ in range(options.repeat)]
                     r = min(runs, key=lambda x: x['round_trip'])
-                    who = ('lean rclpy node: its own wait set, raw samples, synchronous '
-                           'publication' if lean else 'docs/lockstep.md example (rclpy.spin)')
+                    who = ('lean rclpy node: its own wait set, raw samples and commands, '
+                           'synchronous publication' if lean
+                           else 'docs/lockstep.md example (rclpy.spin)')
                     if pinned is not None:
                         who += f'; both processes on one CPU (`taskset -c {pinned}`)'
                     out(f"| {period * 1e3:g} ms | {who} | {_best_median(runs, 'rtf', '.2f')} | "
