@@ -360,8 +360,7 @@ def test_bad_disturbance_files_and_joint_commands_are_refused_with_the_reason(de
             acked(device.joint_commands)
         wait_stamp(device, 4 * MS)
         # bytes that are not a Float64 on crank_length_cmd (the node takes commands raw)
-        with device.crank.handle:
-            device.crank.handle.publish_raw(b'\x00\x01\x00\x00\x00\x00\x00\x00')   # (DDS pads to 4)
+        device.crank.publish(b'\x00\x01\x00\x00\x00\x00\x00\x00')   # (DDS pads to 4)
         wait_stamp(device, 5 * MS)
     finally:
         set_params(device, steps_per_command=0)

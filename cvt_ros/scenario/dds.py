@@ -37,7 +37,13 @@ import numpy as np
 import yaml
 
 from ..device import domains
-from ..interface import STATE, float64_cdr, float64_value, joint_state_stamp_ns
+from ..interface import (
+    ACTUATOR_JOINT,
+    STATE,
+    float64_cdr,
+    float64_value,
+    joint_state_stamp_ns,
+)
 from ..solver.output import COL, N_COLUMNS
 from ..solver.simulator import SimulationError
 from .plants import plant_values
@@ -186,7 +192,6 @@ class DdsPlant:
         self._sample_wait = SubscriptionWait(self.context, (clutch, state))
         self.crank_publisher = self.node.create_publisher(Float64, interface.CRANK_LENGTH_CMD,
                                                           interface.command_qos())
-        self._crank_handle = self.crank_publisher.handle
         self._live = False
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
@@ -226,16 +231,19 @@ class DdsPlant:
         lockstep the next period's; in realtime the newest (periods in between are skipped, as
         a real-time controller skips what it was too slow for; ``skips_periods``). The row is
         ``self.rows``' buffer: the next sample rewrites it."""
-        samples, stamp = self.samples, joint_state_stamp_ns
-        if not samples or stamp(samples[-1]) <= self._last_ns:
-            # lockstep: one wait brings the next period's sample (a single writer's samples
-            # arrive in order: the newest is the last); the liveness checks only if it did not
+        samples = self.samples
+
+        def fresh():   # (a single writer's samples arrive in order: the newest is the last)
+            return samples and joint_state_stamp_ns(samples[-1]) > self._last_ns
+        if not fresh():
+            # lockstep: one wait brings the next period's sample; the liveness checks only if
+            # it did not
             self._sample_wait.wait(WAIT_S)
-            if not samples or stamp(samples[-1]) <= self._last_ns:
-                self._spin_until(lambda: any(stamp(m) > self._last_ns for m in samples),
+            if not fresh():
+                self._spin_until(fresh,
                                  PERIOD_TIMEOUT_S if self._last_ns >= 0 else START_TIMEOUT_S,
                                  'sample from cvt_node', samples_only=True)
-        data = samples[-1] if len(samples) == 1 else max(samples, key=stamp)
+        data = samples[-1]
         samples.clear()
         try:
             ns, position, velocity, effort = self._decoder.decode(data)
@@ -261,7 +269,7 @@ class DdsPlant:
         order = joint_order(names)
         if order is None:
             raise DdsError(f"state without the device's joints: {names}")
-        hits = [i for i, n in enumerate(names) if n.endswith('crank_length')]
+        hits = [i for i, n in enumerate(names) if n.endswith(ACTUATOR_JOINT)]
         return SampleRows(order, hits[0] if len(hits) == 1 else None)
 
     # ------------------------------------------------------------------ plant protocol
@@ -311,10 +319,8 @@ class DdsPlant:
 
     def step(self):
         if not self.external and (not self._live or self._command != self._sent):
-            # lockstep: this advances one period (its CDR bytes, as the node publishes: no
-            # rclpy message object)
-            with self._crank_handle:
-                self._crank_handle.publish_raw(float64_cdr(self._command))
+            # lockstep: this advances one period (its CDR bytes: no rclpy message object)
+            self.crank_publisher.publish(float64_cdr(self._command))
             self._sent = self._command
         return self._next_sample()
 
@@ -341,10 +347,10 @@ class DdsPlant:
                     switches.append((m.log_time_ns * 1e-9, state))
                 engaged = state
                 continue
-            if self.rows is None:
-                self._decoder.decode(m.data)   # (the joint layout, if no sample was seen)
+            sample = self._decoder.decode(m.data)
+            if self.rows is None:   # (the joint layout, if no sample was seen)
                 self.rows = self._sample_rows()
-            rows.append(self.rows.fill(*self._decoder.decode(m.data)).copy())
+            rows.append(self.rows.fill(*sample).copy())
         return np.array(rows), switches, (commands if self.external else None)
 
     @staticmethod
