@@ -205,6 +205,10 @@ def _loop(scenario, controller, plant, controller_name, progress):
     wall = time.perf_counter() - wall0
     keep = np.flatnonzero(np.isfinite(rows[:k + 1, 0]))   # (realtime: the samples seen)
     samples = rows[keep]
+    # the sample times as the stamps carry them (whole ns, as the controller saw them): offline's
+    # t is a running sum of periods (12.344999999998597 for 12.345), dds's a stamp, and the
+    # metrics are computed from these times
+    samples[:, 0] = np.round(samples[:, 0] * 1e9) * 1e-9
     recorded = plant.recorded_samples(k * dt) if hasattr(plant, 'recorded_samples') else None
     if recorded is not None and len(recorded[0]):
         # realtime: the device's own recording has every period; the controller saw `keep`
