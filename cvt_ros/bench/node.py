@@ -41,7 +41,7 @@ import time
 from pathlib import Path
 
 from ..device import domains
-from .report import replace_section
+from .report import environment, replace_section
 
 SECTION = '## ROS node'
 PI_TARGET, PI_KP, PI_KI = 60.0, 2e-4, 2e-3    # rad/s, m per rad/s, m per rad (docs/lockstep.md)
@@ -485,7 +485,9 @@ def _load():
 def run(options, out):
     cases = options.case
     s = options.seconds
-    out(f"Command: `{options.command}`. Machine: {_machine()}; load average (1/5/15 min) "
+    env = environment()
+    out(f"Command: `{options.command}` (at revision {env['revision']}, {env['date']}). "
+        f"Machine: {_machine()}; load average (1/5/15 min) "
         f"{_load()} at the start. Scene conveyor, control period 1 ms unless said; the node's "
         f"own solver: dopri5 in lockstep and fast, rk4 in realtime (docs/node.md).\n")
     if 'inprocess' in cases:
