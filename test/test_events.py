@@ -186,3 +186,22 @@ def test_a_catch_soon_after_a_release_is_located_not_found_late(method):
         assert worst < 1e-2, worst
         counts.add(sim.switch_count)
     assert len(counts) == 1 and counts.pop() > 4.0 * 24 * 3   # > 3 switches a crank turn
+
+
+def test_a_root_search_starts_at_the_hermite_cubics_root():
+    """locate_root's start on the open output's slip: the root of the sub-step's cubic through
+    the ends' values and rates, and its slope there; none where the cubic brackets no root."""
+    from cvt_ros.solver.witness import hermite_root
+
+    def p(x):
+        return (0.3 - x) * (1.0 + x) * (2.0 + x)
+
+    def dp(x):
+        return -(1.0 + x) * (2.0 + x) + (0.3 - x) * (3.0 + 2.0 * x)
+
+    g0, d0, g1, d1 = p(0.0), dp(0.0), p(1.0), dp(1.0)
+    root, slope = hermite_root(g0, d0, g1, d1, 0.0, 1.0)
+    assert root == pytest.approx(0.3, abs=1e-12)
+    assert slope == pytest.approx(dp(0.3), rel=1e-9)
+    assert hermite_root(g0, d0, g1, d1, 0.1, 0.25) == (-1.0, 0.0)   # both ends above zero
+    assert hermite_root(g1, d1, g0, d0, 0.0, 1.0) == (-1.0, 0.0)    # rising: not a fall

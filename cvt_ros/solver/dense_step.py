@@ -27,6 +27,8 @@ from .output import write_sample
 from .steppers import DOPRI5, dense_state, dopri5_step, rk4_step
 from .witness import illinois_point, illinois_update
 
+MAX_SECANTS = 8   # points of the secant phase of locate_root before Illinois takes over
+
 
 @kernel
 def take_step(method, kind, t, y, h, mode, P, ACT, K, y_new, ytmp, aux, rtol, atol, err_idx,
@@ -79,24 +81,65 @@ def true_split_slip(exact, sigma, t, h, y0, K, tau, hs, z0, clock, P, ACT, ycomb
     return ycomb[OMEGA3] - rocker_speed(tt, ycomb, P, ACT)
 
 
+@inline_kernel
+def _true_guard(split, exact, method, m, t, h, y0, y1, K, tau, hs, z0, clock, mode, P, ACT, ytmp,
+                dytmp, auxtmp, ztmp, counters):
+    """The true guard at θ = m: of the step (the right-hand side) or of the output sub-step."""
+    if split:
+        return true_split_slip(exact, m, t, h, y0, K, tau, hs, z0, clock, P, ACT, ytmp, ztmp)
+    return guard_at(method, m, t, h, y0, y1, K, mode, P, ACT, ytmp, dytmp, auxtmp, counters)
+
+
 @kernel
-def locate_root(split, exact, method, t, h, y0, y1, K, tau, hs, z0, clock, mode, P, ACT, Cv, lo, hi,
-                glo, ghi, tol_theta, ytmp, dytmp, auxtmp, ztmp, counters):
-    """Illinois' regula falsi on the true guard g(θ), g(lo) > 0 > g(hi); θ just past the root.
+def locate_root(split, exact, method, t, h, y0, y1, K, tau, hs, z0, clock, mode, P, ACT, lo, hi,
+                glo, ghi, start, start_slope, tol_theta, ytmp, dytmp, auxtmp, ztmp, counters):
+    """The root of the true guard g(θ), g(lo) > 0 > g(hi); θ just past it (within tol_theta).
 
     θ runs over the step [t, t+h] (split = False: the guard through the right-hand side) or
     over the output sub-step [tau, tau+hs] (the slip, with the linkage's rocker speed).
+    A safeguarded secant: from ``start`` (the root of the guard's polynomial, say; < 0: none) a
+    Newton step with ``start_slope`` (its slope there), then secants through the last two
+    points while they stay inside the bracket; once a secant step falls below a quarter of the
+    tolerance the bracket is closed by one point half a tolerance over the root, instead of
+    waiting for the far end to move. Illinois' regula falsi (every 4th point a bisection) takes
+    over where a secant leaves the bracket and after MAX_SECANTS points: the search always ends.
+    Each point costs a right-hand side (split = False) or a linkage evaluation (split).
     """
     side = 0
+    # the point the next secant pivots on: the bracket end nearer the root
+    m_prev, g_prev = (lo, glo) if glo < -ghi else (hi, ghi)
+    nxt = start
+    slope_next = start_slope
     for it in range(200):
         if hi - lo <= tol_theta:
             break
-        m = illinois_point(it, lo, hi, glo, ghi)
-        if split:
-            gm = true_split_slip(exact, m, t, h, y0, K, tau, hs, z0, clock, P, ACT, ytmp, ztmp)
+        if it < MAX_SECANTS and lo < nxt < hi:
+            m = nxt
         else:
-            gm = guard_at(method, m, t, h, y0, y1, K, mode, P, ACT, ytmp, dytmp, auxtmp, counters)
+            m = illinois_point(it, lo, hi, glo, ghi)
+        gm = _true_guard(split, exact, method, m, t, h, y0, y1, K, tau, hs, z0, clock, mode, P,
+                         ACT, ytmp, dytmp, auxtmp, ztmp, counters)
         lo, hi, glo, ghi, side = illinois_update(m, gm, lo, hi, glo, ghi, side)
+        if side == 0 or hi - lo <= tol_theta:
+            break
+        slope = slope_next if m == start else (gm - g_prev) / (m - m_prev)
+        slope_next = 0.0
+        m_prev = m
+        g_prev = gm
+        nxt = -1.0
+        if not slope < 0.0:
+            continue
+        step = -gm / slope
+        if abs(step) < 0.25 * tol_theta:
+            # the secant sits on the root: one point half a tolerance over it closes the bracket
+            p = m + (0.5 * tol_theta if gm > 0.0 else -0.5 * tol_theta)
+            gp = _true_guard(split, exact, method, p, t, h, y0, y1, K, tau, hs, z0, clock, mode,
+                             P, ACT, ytmp, dytmp, auxtmp, ztmp, counters)
+            lo, hi, glo, ghi, side = illinois_update(p, gp, lo, hi, glo, ghi, side)
+            if side == 0:
+                break
+        else:
+            nxt = m + step
     return hi
 
 

@@ -133,21 +133,26 @@ SETTLE_BANDS = 1e5
 
 @kernel
 def _confirm_root(method, t, h, y, y_new, K, mode, P, ACT, clock, theta, hi, g0, ghi, gtol,
-                  tol_theta, ytmp, dytmp, auxtmp, counters):
+                  tol_theta, G, ytmp, dytmp, auxtmp, counters):
     """The polynomial's root θ checked on the true guard (one right-hand side): kept when the
     guard there is inside its band, else re-located on the true guard in the bracket the check
-    leaves. The reset map's complementarity sees the true guard: a release placed where the
-    clutch still pushes would engage again at once (chatter at loose tolerances)."""
+    leaves, from a Newton step with the polynomial's slope (G). The reset map's complementarity
+    sees the true guard: a release placed where the clutch still pushes would engage again at
+    once (chatter at loose tolerances)."""
     if theta >= hi:
         return hi
     gt = guard_at(method, theta, t, h, y, y_new, K, mode, P, ACT, ytmp, dytmp, auxtmp, counters)
     if abs(gt) <= gtol:
         return theta
+    rate = guard_rate(G, theta)
+    start = theta - gt / rate if rate < 0.0 else -1.0
     if gt > 0.0:
-        return locate_root(False, False, method, t, h, y, y_new, K, t, h, y, clock, mode, P, ACT, y,
-                           theta, hi, gt, ghi, tol_theta, ytmp, dytmp, auxtmp, ytmp, counters)
-    return locate_root(False, False, method, t, h, y, y_new, K, t, h, y, clock, mode, P, ACT, y,
-                       0.0, theta, g0, gt, tol_theta, ytmp, dytmp, auxtmp, ytmp, counters)
+        return locate_root(False, False, method, t, h, y, y_new, K, t, h, y, clock, mode, P, ACT,
+                           theta, hi, gt, ghi, start, rate, tol_theta, ytmp, dytmp, auxtmp, ytmp,
+                           counters)
+    return locate_root(False, False, method, t, h, y, y_new, K, t, h, y, clock, mode, P, ACT,
+                       0.0, theta, g0, gt, start, rate, tol_theta, ytmp, dytmp, auxtmp, ytmp,
+                       counters)
 
 
 @kernel
@@ -174,8 +179,9 @@ def _twist_crossing(method, t, h, y, y_new, K, mode, P, ACT, clock, g0, g1, G, t
     else:
         lo, glo = 0.0, g0
     if g1 < 0.0:
-        return locate_root(False, False, method, t, h, y, y_new, K, t, h, y, clock, mode, P, ACT, y,
-                           lo, 1.0, glo, g1, tol_theta, ytmp, dytmp, auxtmp, ytmp, counters)
+        return locate_root(False, False, method, t, h, y, y_new, K, t, h, y, clock, mode, P, ACT,
+                           lo, 1.0, glo, g1, -1.0, 0.0, tol_theta, ytmp, dytmp, auxtmp, ytmp,
+                           counters)
     return -1.0
 
 
@@ -195,8 +201,9 @@ def _left_band_upwards(method, t, h, y, y_new, K, mode, P, ACT, clock, g1, gtol,
     if not gt > gtol:
         return -1.0
     tol_theta = max(1e-13, 8.0 * 2.2e-16 * abs(t)) / h
-    return locate_root(False, False, method, t, h, y, y_new, K, t, h, y, clock, mode, P, ACT, y,
-                       best_x, 1.0, gt, g1, tol_theta, ytmp, dytmp, auxtmp, ytmp, counters)
+    return locate_root(False, False, method, t, h, y, y_new, K, t, h, y, clock, mode, P, ACT,
+                       best_x, 1.0, gt, g1, -1.0, 0.0, tol_theta, ytmp, dytmp, auxtmp, ytmp,
+                       counters)
 
 
 @kernel
@@ -306,7 +313,7 @@ def _single_rate(method, kind, err_idx, t, h, clipped, t_end, y, y_new, K, mode,
                 fire = CROSSING
                 settle = kind != MASSLESS
                 theta = _confirm_root(method, t, h, y, y_new, K, mode, P, ACT, clock, theta, hi,
-                                      g0, ghi, gtol, tol_theta, ytmp, dytmp, auxtmp, counters)
+                                      g0, ghi, gtol, tol_theta, G, ytmp, dytmp, auxtmp, counters)
         else:
             theta = _twist_crossing(method, t, h, y, y_new, K, mode, P, ACT, clock, g0, g1, G,
                                     tol_theta, ytmp, dytmp, auxtmp, counters)

@@ -60,7 +60,7 @@ from .steppers import (
     dopri5_step,
     initial_step,
 )
-from .witness import N_POLY, hermite_minimum, poly_value
+from .witness import N_POLY, hermite_minimum, hermite_root, poly_value
 
 # The open output's slip is watched on sub-intervals, in rad of its fastest mode. A look is the
 # Hermite cubic of the slip under its error bound (|a|·|λ|⁴·hs⁴/384 for a mode of amplitude a),
@@ -354,9 +354,13 @@ def split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arme
             gt_lo = true_split_slip(exact, lo, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb,
                                     ztmp)
             if gt_hi < 0.0 < gt_lo:
+                # started at the root of the sub-step's Hermite cubic of the slip (its ends'
+                # values and exact rates), with its slope
+                start, start_slope = hermite_root(g0, hs * (dw3_0 - dv0), g1, hs * (dw3_1 - dv1),
+                                                  lo, hi)
                 sigma = locate_root(True, exact, DOPRI5, t, h, y, y_new, K, tau, hs, z, clock,
-                                    mode, P, ACT, Cv, lo, hi, gt_lo, gt_hi, tol_s, ycomb,
-                                    dytmp, auxtmp, ztmp, counters)
+                                    mode, P, ACT, lo, hi, gt_lo, gt_hi, start, start_slope,
+                                    tol_s, ycomb, dytmp, auxtmp, ztmp, counters)
             elif gt_hi >= -gtol:
                 fire = NO_EVENT   # a dip of the rocker speed's interpolant alone
                 if hi == 1.0:

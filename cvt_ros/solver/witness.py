@@ -206,6 +206,39 @@ def poly_root(G, lo, hi, glo, ghi, tol):
 
 
 @inline_kernel
+def hermite_root(g0, d0, g1, d1, lo, hi):
+    """A start for a root search in [lo, hi] ⊂ [0, 1]: the root of the cubic with p(0)=g0,
+    p'(0)=d0, p(1)=g1, p'(1)=d1 where it falls through zero there (p(lo) > 0 > p(hi)), by Newton
+    steps on the cubic kept inside the bracket, and the cubic's slope at it: (θ, dp/dθ), or
+    (−1, 0) when the cubic does not bracket a root in [lo, hi]."""
+    c2 = -3.0 * g0 - 2.0 * d0 + 3.0 * g1 - d1
+    c3 = 2.0 * g0 + d0 - 2.0 * g1 + d1
+    a = lo
+    b = hi
+    pa = ((c3 * a + c2) * a + d0) * a + g0
+    pb = ((c3 * b + c2) * b + d0) * b + g0
+    if not (pa > 0.0 > pb):
+        return -1.0, 0.0
+    x = a - pa * (b - a) / (pb - pa)
+    for _ in range(12):
+        px = ((c3 * x + c2) * x + d0) * x + g0
+        if px == 0.0:
+            break
+        slope = (3.0 * c3 * x + 2.0 * c2) * x + d0
+        if px > 0.0:
+            a = x
+        else:
+            b = x
+        step = -px / slope if slope < 0.0 else math.inf
+        if abs(step) <= 1e-12:
+            if a < x + step < b:
+                x += step
+            break
+        x = x + step if a < x + step < b else 0.5 * (a + b)
+    return x, (3.0 * c3 * x + 2.0 * c2) * x + d0
+
+
+@inline_kernel
 def hermite_minimum(g0, d0, g1, d1):
     """Interior minimum (θ, value) of the cubic with p(0)=g0, p'(0)=d0, p(1)=g1, p'(1)=d1."""
     c1 = d0
