@@ -3,8 +3,10 @@
 ``advance`` integrates from t to t_end in the current clutch mode and watches the clutch witness
 function over every accepted step: not only at its ends but along the whole step, as a polynomial
 of the step's dense output (witness.py), so a guard that dips through zero and back inside one
-step is seen. A crossing is located on that polynomial (Illinois' regula falsi to ~1e-13 s), a
-true step is re-taken exactly to the event, the automaton's reset map (physics/clutch.py) applies
+step is seen. A crossing is located on that polynomial (Illinois' regula falsi to ~1e-13 s) and
+confirmed on the true guard (from the polynomial's root by a safeguarded secant,
+dense_step.locate_root), a true step is re-taken exactly to the event, the automaton's reset map
+(physics/clutch.py) applies
 and the run goes on in the new mode with a fresh starting step for it. A guard found beyond its
 band after a step ('late') is switched at once and counted (C_LATE): a possibly missed event
 that the caller reports. Samples on a caller-given grid are written from the dense output, so
