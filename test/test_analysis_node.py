@@ -28,6 +28,12 @@ def test_node_recording_analysed_against_an_independent_reader(tmp_path):
             crank = probe.publisher(Float64, 'crank_length_cmd')
             assert wait_for(lambda: crank.get_subscription_count() > 0, 10.0)
             crank.publish(Float64(data=0.04))
+            # wait for the command's effect, not for a number of samples: delivery to a reader
+            # that has only just matched may wait for a heartbeat, and a fast node on a fast
+            # machine publishes thousands of samples meanwhile (it once ended the run first)
+            crank_at = I.DEVICE_JOINTS.index(I.ACTUATOR_JOINT)
+            assert wait_for(lambda: (m := joints.last()) is not None
+                            and m.position[crank_at] > 0.0301, 120.0), proc.output()
             assert wait_for(lambda: len(joints) > 2500, 120.0), proc.output()
         finally:
             probe.close()
