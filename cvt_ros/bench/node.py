@@ -41,7 +41,7 @@ import time
 from pathlib import Path
 
 from ..device import domains
-from .report import environment, replace_section
+from .report import cpu_model, replace_section, revision_and_date
 
 SECTION = '## ROS node'
 PI_TARGET, PI_KP, PI_KI = 60.0, 2e-4, 2e-3    # rad/s, m per rad/s, m per rad (docs/lockstep.md)
@@ -467,14 +467,7 @@ def _pct(x):
 
 
 def _machine():
-    model = ''
-    try:
-        model = next((ln.split(':', 1)[1].strip() for ln in
-                      Path('/proc/cpuinfo').read_text().splitlines()
-                      if ln.startswith('model name')), '')
-    except OSError:
-        pass
-    return f"{os.cpu_count()} CPUs ({model or platform.machine()}), Python " \
+    return f"{os.cpu_count()} CPUs ({cpu_model() or platform.machine()}), Python " \
            f"{platform.python_version()}"
 
 
@@ -485,8 +478,8 @@ def _load():
 def run(options, out):
     cases = options.case
     s = options.seconds
-    env = environment()
-    out(f"Command: `{options.command}` (at revision {env['revision']}, {env['date']}). "
+    revision, date = revision_and_date()
+    out(f"Command: `{options.command}` (at revision {revision}, {date}). "
         f"Machine: {_machine()}; load average (1/5/15 min) "
         f"{_load()} at the start. Scene conveyor, control period 1 ms unless said; the node's "
         f"own solver: dopri5 in lockstep and fast, rk4 in realtime (docs/node.md).\n")

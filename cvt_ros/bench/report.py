@@ -30,30 +30,38 @@ def fmt(x, digits=3):
     return f'{x:.{digits}g}' if 1e-3 <= abs(x) < 1e5 else f'{x:.{digits - 1}e}'
 
 
-def environment():
-    cpu = ''
+def cpu_model():
+    """The CPU's model name from /proc/cpuinfo ('' where there is none)."""
     try:
-        for line in Path('/proc/cpuinfo').read_text().splitlines():
-            if line.startswith('model name'):
-                cpu = line.split(':', 1)[1].strip()
-                break
+        return next((line.split(':', 1)[1].strip() for line in
+                     Path('/proc/cpuinfo').read_text().splitlines()
+                     if line.startswith('model name')), '')
     except OSError:
-        cpu = platform.processor()
+        return ''
+
+
+def revision_and_date():
+    """(`git describe --always --dirty` of this checkout or 'unknown', the UTC time now)."""
+    try:
+        rev = subprocess.run(['git', 'describe', '--always', '--dirty'], cwd=ROOT, text=True,
+                             capture_output=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        rev = ''
+    return rev or 'unknown', datetime.datetime.now(datetime.UTC).strftime('%Y-%m-%d %H:%M UTC')
+
+
+def environment():
+    cpu = cpu_model() or platform.processor()
     versions = {}
     for mod in ('numpy', 'scipy', 'numba', 'matplotlib'):
         try:
             versions[mod] = __import__(mod).__version__
         except ImportError:
             versions[mod] = 'absent'
-    try:
-        rev = subprocess.run(['git', 'describe', '--always', '--dirty'], cwd=ROOT, text=True,
-                             capture_output=True, timeout=10).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        rev = ''
+    rev, date = revision_and_date()
     return {'cpu': cpu or 'unknown', 'cores': os.cpu_count(), 'python': platform.python_version(),
-            'platform': platform.platform(), 'versions': versions, 'revision': rev or 'unknown',
-            'date': datetime.datetime.now(datetime.UTC).strftime('%Y-%m-%d %H:%M UTC'),
-            'load': os.getloadavg()}
+            'platform': platform.platform(), 'versions': versions, 'revision': rev,
+            'date': date, 'load': os.getloadavg()}
 
 
 def table(header, rows):
