@@ -17,6 +17,7 @@ from cvt_ros.physics.linkage import grashof_bound
 from cvt_ros.scene import available_scenes, load_scene
 from cvt_ros.solver.output import COL
 from cvt_ros.solver.simulator import Simulator
+from cvt_ros.solver.witness import hermite_root
 
 RTOLS = (1e-4, 1e-6, 1e-8, 1e-10)
 SPAN = 0.5
@@ -191,8 +192,6 @@ def test_a_catch_soon_after_a_release_is_located_not_found_late(method):
 def test_a_root_search_starts_at_the_hermite_cubics_root():
     """locate_root's start on the open output's slip: the root of the sub-step's cubic through
     the ends' values and rates, and its slope there; none where the cubic brackets no root."""
-    from cvt_ros.solver.witness import hermite_root
-
     def p(x):
         return (0.3 - x) * (1.0 + x) * (2.0 + x)
 

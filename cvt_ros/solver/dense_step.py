@@ -109,7 +109,6 @@ def locate_root(split, exact, method, t, h, y0, y1, K, tau, hs, z0, clock, mode,
     # the point the next secant pivots on: the bracket end nearer the root
     m_prev, g_prev = (lo, glo) if glo < -ghi else (hi, ghi)
     nxt = start
-    slope_next = start_slope
     for it in range(200):
         if hi - lo <= tol_theta:
             break
@@ -122,8 +121,7 @@ def locate_root(split, exact, method, t, h, y0, y1, K, tau, hs, z0, clock, mode,
         lo, hi, glo, ghi, side = illinois_update(m, gm, lo, hi, glo, ghi, side)
         if side == 0 or hi - lo <= tol_theta:
             break
-        slope = slope_next if m == start else (gm - g_prev) / (m - m_prev)
-        slope_next = 0.0
+        slope = start_slope if it == 0 and m == start else (gm - g_prev) / (m - m_prev)
         m_prev = m
         g_prev = gm
         nxt = -1.0

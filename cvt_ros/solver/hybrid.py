@@ -6,11 +6,10 @@ of the step's dense output (witness.py), so a guard that dips through zero and b
 step is seen. A crossing is located on that polynomial (Illinois' regula falsi to ~1e-13 s) and
 confirmed on the true guard (from the polynomial's root by a safeguarded secant,
 dense_step.locate_root), a true step is re-taken exactly to the event, the automaton's reset map
-(physics/clutch.py) applies
-and the run goes on in the new mode with a fresh starting step for it. A guard found beyond its
-band after a step ('late') is switched at once and counted (C_LATE): a possibly missed event
-that the caller reports. Samples on a caller-given grid are written from the dense output, so
-sampling never shortens a step.
+(physics/clutch.py) applies and the run goes on in the new mode with a fresh starting step for
+it. A guard found beyond its band after a step ('late') is switched at once and counted
+(C_LATE): a possibly missed event that the caller reports. Samples on a caller-given grid are
+written from the dense output, so sampling never shortens a step.
 
 Step size: Dormand–Prince's error estimate with a PI controller (Gustafsson; Hairer's DOPRI5
 constants), restarted after each switch by the Hairer–Nørsett–Wanner estimate in the new mode.
@@ -148,13 +147,9 @@ def _confirm_root(method, t, h, y, y_new, K, mode, P, ACT, clock, theta, hi, g0,
         return theta
     rate = guard_rate(G, theta)
     start = theta - gt / rate if rate < 0.0 else -1.0
-    if gt > 0.0:
-        return locate_root(False, False, method, t, h, y, y_new, K, t, h, y, clock, mode, P, ACT,
-                           theta, hi, gt, ghi, start, rate, tol_theta, ytmp, dytmp, auxtmp, ytmp,
-                           counters)
-    return locate_root(False, False, method, t, h, y, y_new, K, t, h, y, clock, mode, P, ACT,
-                       0.0, theta, g0, gt, start, rate, tol_theta, ytmp, dytmp, auxtmp, ytmp,
-                       counters)
+    lo, hi, glo, ghi = (theta, hi, gt, ghi) if gt > 0.0 else (0.0, theta, g0, gt)
+    return locate_root(False, False, method, t, h, y, y_new, K, t, h, y, clock, mode, P, ACT, lo,
+                       hi, glo, ghi, start, rate, tol_theta, ytmp, dytmp, auxtmp, ytmp, counters)
 
 
 @kernel

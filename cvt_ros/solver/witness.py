@@ -206,13 +206,18 @@ def poly_root(G, lo, hi, glo, ghi, tol):
 
 
 @inline_kernel
+def hermite_cubic(g0, d0, g1, d1):
+    """(c2, c3) of the cubic p(θ) = g0 + d0·θ + c2·θ² + c3·θ³ with p(1) = g1, p'(1) = d1."""
+    return -3.0 * g0 - 2.0 * d0 + 3.0 * g1 - d1, 2.0 * g0 + d0 - 2.0 * g1 + d1
+
+
+@inline_kernel
 def hermite_root(g0, d0, g1, d1, lo, hi):
     """A start for a root search in [lo, hi] ⊂ [0, 1]: the root of the cubic with p(0)=g0,
     p'(0)=d0, p(1)=g1, p'(1)=d1 where it falls through zero there (p(lo) > 0 > p(hi)), by Newton
     steps on the cubic kept inside the bracket, and the cubic's slope at it: (θ, dp/dθ), or
     (−1, 0) when the cubic does not bracket a root in [lo, hi]."""
-    c2 = -3.0 * g0 - 2.0 * d0 + 3.0 * g1 - d1
-    c3 = 2.0 * g0 + d0 - 2.0 * g1 + d1
+    c2, c3 = hermite_cubic(g0, d0, g1, d1)
     a = lo
     b = hi
     pa = ((c3 * a + c2) * a + d0) * a + g0
@@ -242,8 +247,7 @@ def hermite_root(g0, d0, g1, d1, lo, hi):
 def hermite_minimum(g0, d0, g1, d1):
     """Interior minimum (θ, value) of the cubic with p(0)=g0, p'(0)=d0, p(1)=g1, p'(1)=d1."""
     c1 = d0
-    c2 = -3.0 * g0 - 2.0 * d0 + 3.0 * g1 - d1
-    c3 = 2.0 * g0 + d0 - 2.0 * g1 + d1
+    c2, c3 = hermite_cubic(g0, d0, g1, d1)
     best_t = -1.0
     best = math.inf
     qa = 3.0 * c3
