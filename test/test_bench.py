@@ -149,6 +149,8 @@ def test_steady_state_and_scaling_rows(report):
     assert wall > 0.0 and scipy_wall > 0.0
     sequential, independent = (number(part) for part in steady[1][0][9].split('/'))
     assert sequential >= 1.0 and independent >= 1.0   # each floor is a floor
+    loose = next(t for t in tables(text) if t[0][:3] == ['scene', 'wall [ms]', 'φ4 rel. error'])
+    assert [r[0] for r in loose[1]] == ['paper'] and number(loose[1][0][4]) > 0.0
     times = next(t for t in tables(text) if t[0][0] == 'simulated [s]')
     assert [number(r[0]) for r in times[1]] == [1.0, 2.0]
     sweep = next(t for t in tables(text) if t[0][:2] == ['scene', 'variant'])
