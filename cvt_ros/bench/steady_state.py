@@ -4,13 +4,16 @@ floor of their own right-hand-side evaluations, all in one run.
 Each scene runs 2 s from rest (start-up, not timed), then STEADY_SPAN s as ``cvt-sim run`` does
 (0.1 s samples, the samples streamed, not kept). From the same state at t = 2 s: scipy DOP853 at
 rtol 1e-4 (atol 1e-6, events on the same guards, solver/reference.py), and the project at
-rtol 1e-10 as the reference of both φ4 errors. The RHS floor is the solver's own count of RHS
-evaluations in the timed window times the cost of one evaluation, measured in the same run by a
-compiled loop over the run's own states (1 ms samples, both clutch modes in their proportion),
-two ways: calls independent of each other (the processor overlaps them), and calls in sequence,
-each one's state waiting on the last one's derivative as a Runge–Kutta stage waits on the stage
-before it. A one-step integrator cannot overlap its stages, so the sequential cost is the floor
-it can reach; the independent one is kept beside it.
+rtol 1e-10 as the reference of both φ4 errors; and the project's window again at scipy's
+tolerances, for the speed-up where neither side is asked for more accuracy.
+
+The RHS floor is the solver's own count of RHS evaluations in the timed window times the cost of
+one evaluation, measured in the same run by a compiled loop over the run's own states (1 ms
+samples, both clutch modes in their proportion), two ways: calls independent of each other (the
+processor overlaps them), and calls in sequence, each one's state waiting on the last one's
+derivative as a Runge–Kutta stage waits on the stage before it. A one-step integrator cannot
+overlap its stages, so the sequential cost is the floor it can reach; the independent one is
+kept beside it.
 """
 import math
 import time
@@ -53,8 +56,8 @@ def _rhs_loop(states, modes, P, ACT, repeats):
 @allocating_kernel
 def _rhs_chain(states, modes, P, ACT, repeats):
     """As _rhs_loop, but each call's state is the sample plus 1e-30 × the last call's derivative
-    (the same numbers: far below the states' last bit), as a stage is y + h·Σ a·K: the next
-    call cannot start before the last one has ended."""
+    (the same numbers: far below the last bit of every state the right-hand side reads), as a
+    stage is y + h·Σ a·K: the next call cannot start before the last one has ended."""
     dy = np.zeros(states.shape[1])
     y = np.empty(states.shape[1])
     aux = np.empty(L.N_AUX)
