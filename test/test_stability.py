@@ -185,9 +185,10 @@ def check_physical(sim, result):
     'linkage.crank_length': 0.09375, 'inertia.motor': math.exp(-3.75),
     'inertia.rocker': math.exp(-4.75), 'shaft.stiffness': math.inf,
     'motor.model': 'constant_torque', 'initial.crank_speed': 146.0}))
-# was a defect of the first version of the settled switches (hybrid.SETTLE_OVERSHOOT): a massless
-# damped node's catch, located on an interpolant that does not follow its relaxation, fell short
-# by 0.04 rad/s and Newton carried it to an engagement at slip −0.01 (found by 1000 examples)
+# was a defect of the first version of the settled switches (guard_watch.SETTLE_OVERSHOOT): a
+# massless damped node's catch, located on an interpolant that does not follow its relaxation,
+# fell short by 0.04 rad/s and Newton carried it to an engagement at slip −0.01 (found by 1000
+# examples)
 @example(values=shrunk_draw({
     'linkage.crank_length': 0.015625, 'inertia.motor': math.exp(-3.0),
     'inertia.rocker': math.exp(-7.0), 'shaft.stiffness': math.exp(4.75), 'shaft.damping': 1.0,
@@ -263,7 +264,7 @@ def test_plain_rk4_beyond_the_stability_limit_blows_up():
 
 def test_a_release_whose_torque_dip_fits_inside_one_step_is_caught():
     # was a defect: the clutch torque has no derivative for a Hermite dip test; the step's
-    # middle and the parabola's vertex are now probed (hybrid._single_rate)
+    # middle and the parabola's vertex are now probed (guard_watch.watch_step)
     sim = Simulator(dict(load_scene('paper'), **RELEASE_DIP))   # default rtol 2e-6
     result = sim.run(0.3, 1e-6)
     engaged = result.column('engaged') == 1.0
@@ -293,7 +294,7 @@ def test_the_exact_output_sees_every_short_reengagement_on_the_stiff_shaft():
 
 def test_a_massless_damped_node_at_the_default_tolerance():
     # was a defect: ω3 = ω4 − c·θ/kd amplified the stiff θ's step-to-step error by c/kd; the
-    # open node's twist now relaxes exactly (hybrid._relax_twist)
+    # open node's twist now relaxes exactly (guard_watch.relax_twist)
     runs = {}
     for rtol in (2e-6, 1e-10):
         sim = Simulator(dict(load_scene('paper'), **MASSLESS_DAMPED,

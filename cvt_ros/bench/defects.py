@@ -88,7 +88,8 @@ def known_defects(log):
                  f'min {tq_t:.2g} N·m',
         'repro': 'Simulator(dict(load_scene(\'paper\'), **defects.RELEASE_DIP)).run(0.3, 1e-6)',
         'cause': 'the torque release guard has no derivative (clutch_guard returns nan), so '
-                 '_single_rate skips the Hermite dip test for it; a dip that starts and ends '
+                 'the step\'s watch (guard_watch.watch_step) skips the Hermite dip test for it; '
+                 'a dip that starts and ends '
                  'inside one step goes unseen (also at rtol 1e-8; caught from 1e-9). Fix: '
                  'give the guard its derivative (Tc\' = J3·v\'\' + c·(ω3 − ω4) + kd·(ω3\' − ω4\')) '
                  'or probe the dense output inside the step.'})
@@ -105,7 +106,7 @@ def known_defects(log):
         'cause': 'tiny crank, rigid shaft, a load that lets the output overrun: the rocker\'s '
                  'peak speed exceeds the output\'s for 0.37 ms inside a ~2.6 ms step; the Hermite '
                  'cubic of the slip through the step\'s ends (values and slopes) stays positive, '
-                 'so _single_rate never probes the dip (caught from rtol 1e-7). Found by the '
+                 'so the step\'s watch never probes the dip (caught from rtol 1e-7). Found by the '
                  'property search at the default rtol. Fix: as for the release guard, also probe '
                  'the dense output inside the step (middle, cubic vertex), or bound the step by '
                  'the rocker\'s swing.'})

@@ -2,7 +2,8 @@
 step-size proposals it carries between calls and the carving of its one scratch array.
 
 The solver's callers (simulator.py, period.py, the benchmarks) read and fill these arrays by the
-names here; the compiled pieces of the loop (dense_step.py, slip_watch.py, hybrid.py) share them.
+names here; the compiled pieces of the loop (dense_step.py, guard_watch.py,
+slip_watch.py, hybrid.py) share them.
 """
 from ..physics.layout import N_AUX, N_OUTPUT, N_STATE
 from .witness import N_GUARD, N_POLY

@@ -2,7 +2,8 @@
 inside a split step (the input's dense output with the open output's own solution), a guard's
 root located on the true guard, and the caller's samples written without shortening the step.
 
-Pieces of the hybrid loop (hybrid.py) that the open output's slip watch (slip_watch.py) uses too.
+Pieces of the hybrid loop (hybrid.py) that the watches of the guard (guard_watch.py) and of the
+open output's slip (slip_watch.py) share.
 """
 import math
 

@@ -1,15 +1,13 @@
 """The hybrid integration loop: steps, clutch events, resets and samples, all in one compiled call.
 
-``advance`` integrates from t to t_end in the current clutch mode and watches the clutch witness
-function over every accepted step: not only at its ends but along the whole step, as a polynomial
-of the step's dense output (witness.py), so a guard that dips through zero and back inside one
-step is seen. A crossing is located on that polynomial (Illinois' regula falsi to ~1e-13 s) and
-confirmed on the true guard (from the polynomial's root by a safeguarded secant,
-dense_step.locate_root), a true step is re-taken exactly to the event, the automaton's reset map
-(physics/clutch.py) applies and the run goes on in the new mode with a fresh starting step for
-it. A guard found beyond its band after a step ('late') is switched at once and counted
-(C_LATE): a possibly missed event that the caller reports. Samples on a caller-given grid are
-written from the dense output, so sampling never shortens a step.
+``advance`` integrates from t to t_end in the current clutch mode. After every accepted step the
+clutch witness function is watched along the whole step (guard_watch.py; while the clutch is
+open, the slip by the open output's watch, slip_watch.py): a crossing found there is reached by a
+true step re-taken exactly to it, the automaton's reset map (physics/clutch.py) applies here and
+the run goes on in the new mode with a fresh starting step for it. A guard found beyond its band
+after a step ('late') is switched at once and counted (C_LATE): a possibly missed event that the
+caller reports. Samples on a caller-given grid are written from the dense output, so sampling
+never shortens a step.
 
 Step size: Dormand–Prince's error estimate with a PI controller (Gustafsson; Hairer's DOPRI5
 constants), restarted after each switch by the Hairer–Nørsett–Wanner estimate in the new mode.
@@ -27,17 +25,15 @@ from ..physics.clutch import (
     KIND_ENGAGE_IMPACT,
     KIND_GRAZE,
     KIND_RELEASE,
-    TWIST_TOLERANCE,
     clutch_engages,
     clutch_guard,
     guard_tolerance,
 )
-from ..physics.compiled import inline_kernel, kernel
+from ..physics.compiled import kernel
 from ..physics.drives import next_actuator_break
 from ..physics.dynamics import engage_with_impact, finite_state, project, rhs
 from ..physics.layout import (
     AUX_SLIP,
-    AUX_SLIP_RATE,
     DISENGAGED,
     ENGAGED,
     N_AUX,
@@ -50,7 +46,6 @@ from ..physics.layout import (
     P_LINEAR_OUTPUT,
     P_RIGID,
     TWIST,
-    W_DAMPING,
 )
 from .advance_layout import (
     C_ENGAGED_STEPS,
@@ -86,7 +81,8 @@ from .advance_layout import (
     STATUS_STEP_TOO_SMALL,
     STATUS_ZENO,
 )
-from .dense_step import emit_samples, guard_at, locate_root, sample_due, take_step, twist_relaxes
+from .dense_step import take_step, twist_relaxes
+from .guard_watch import creep_onto_catch, relax_twist, watch_step
 from .slip_watch import split_output
 from .steppers import (
     DOPRI5,
@@ -102,272 +98,13 @@ from .steppers import (
     SAFETY,
     initial_step,
 )
-from .witness import (
-    N_GUARD,
-    N_POLY,
-    guard_polynomial,
-    guard_rate,
-    guard_value,
-    lowest_point,
-    poly_root,
-    poly_value,
-)
+from .witness import N_GUARD, N_POLY
 
 MAX_EVENTS_AT_ONE_TIME = 8
 PI_BETA = 0.04           # Hairer's DOPRI5: h·err^−(0.2 − 0.75β)·err_old^β
 PI_ALPHA = 0.2 - 0.75 * PI_BETA
 PI_SAFETY = 0.8
 ERR_OLD_START = 1e-4
-# A root located on the step's dense output is reached by a re-taken step, whose state differs
-# from the interpolant by the dense output's own error: at the defaults the release's clutch
-# torque there is ~3e-5 N·m, 3000× its band. Where it lands short (half the time) the re-taken
-# end is moved on by Newton steps on the guard's polynomial rate, overshooting by a quarter so
-# that one step lands past the root (the guard then as far past zero as the landings that
-# were not short), instead of a whole new step that finds the root again at its very start.
-SETTLE_STEPS = 3
-SETTLE_OVERSHOOT = 1.25
-# Only a landing that fell short by a dense output's error is settled (5e4 bands at most on the
-# shipped scenes); one further off (a massless node's relaxation, which the interpolant does
-# not follow) is left to a new step, as before
-SETTLE_BANDS = 1e5
-
-
-@kernel
-def _confirm_root(method, t, h, y, y_new, K, mode, P, ACT, clock, theta, hi, g0, ghi, gtol,
-                  tol_theta, G, ytmp, dytmp, auxtmp, counters):
-    """The polynomial's root θ checked on the true guard (one right-hand side): kept when the
-    guard there is inside its band, else re-located on the true guard in the bracket the check
-    leaves, from a Newton step with the polynomial's slope (G). The reset map's complementarity
-    sees the true guard: a release placed where the clutch still pushes would engage again at
-    once (chatter at loose tolerances)."""
-    if theta >= hi:
-        return hi
-    gt = guard_at(method, theta, t, h, y, y_new, K, mode, P, ACT, ytmp, dytmp, auxtmp, counters)
-    if abs(gt) <= gtol:
-        return theta
-    rate = guard_rate(G, theta)
-    start = theta - gt / rate if rate < 0.0 else -1.0
-    lo, hi, glo, ghi = (theta, hi, gt, ghi) if gt > 0.0 else (0.0, theta, g0, gt)
-    return locate_root(False, False, method, t, h, y, y_new, K, t, h, y, clock, mode, P, ACT, lo,
-                       hi, glo, ghi, start, rate, tol_theta, ytmp, dytmp, auxtmp, ytmp, counters)
-
-
-@kernel
-def _twist_crossing(method, t, h, y, y_new, K, mode, P, ACT, clock, g0, g1, G, tol_theta,
-                    ytmp, dytmp, auxtmp, counters):
-    """The twist rule's release inside the step (θ where the guard max(θ, −k·s'_free) falls
-    through zero; G holds the twist's polynomial), or −1."""
-    theta_z = -1.0
-    if G[0] > 0.0:
-        tw1 = poly_value(G, 1.0)
-        if tw1 < 0.0:
-            theta_z = poly_root(G, 0.0, 1.0, G[0], tw1, tol_theta)
-        else:
-            tm, gm = lowest_point(G, -TWIST_TOLERANCE)
-            if gm < -TWIST_TOLERANCE:
-                theta_z = poly_root(G, 0.0, tm, G[0], gm, tol_theta)
-        if theta_z < 0.0:
-            return -1.0
-        gz = guard_at(method, theta_z, t, h, y, y_new, K, mode, P, ACT, ytmp, dytmp, auxtmp,
-                      counters)
-        if gz <= 0.0:
-            return theta_z       # the twist reached zero where the clutch can open
-        lo, glo = theta_z, gz    # it opens later, once s'_free ≥ 0: by the step's end?
-    else:
-        lo, glo = 0.0, g0
-    if g1 < 0.0:
-        return locate_root(False, False, method, t, h, y, y_new, K, t, h, y, clock, mode, P, ACT,
-                           lo, 1.0, glo, g1, -1.0, 0.0, tol_theta, ytmp, dytmp, auxtmp, ytmp,
-                           counters)
-    return -1.0
-
-
-@kernel
-def _left_band_upwards(method, t, h, y, y_new, K, mode, P, ACT, clock, g1, gtol, C, G, ytmp,
-                       dytmp, auxtmp, counters):
-    """A step that began inside the guard's band and ends below it: θ of the crossing down
-    after the guard's highest point in the step if the true guard stood above the band there,
-    else −1. (The guard's polynomial picks the point; with the twist rule it is the twist's.)"""
-    guard_polynomial(method, h, y, y_new, K, mode, P, C, G)
-    for k in range(N_POLY + 1):   # the highest point of the guard: the lowest of −guard
-        G[k] = -G[k]              # (its exponential term's amplitude too; the rate stays)
-    best_x, _ = lowest_point(G, -gtol)
-    if best_x < 0.0:
-        return -1.0
-    gt = guard_at(method, best_x, t, h, y, y_new, K, mode, P, ACT, ytmp, dytmp, auxtmp, counters)
-    if not gt > gtol:
-        return -1.0
-    tol_theta = max(1e-13, 8.0 * 2.2e-16 * abs(t)) / h
-    return locate_root(False, False, method, t, h, y, y_new, K, t, h, y, clock, mode, P, ACT,
-                       best_x, 1.0, gt, g1, -1.0, 0.0, tol_theta, ytmp, dytmp, auxtmp, ytmp,
-                       counters)
-
-
-@kernel
-def _creep_onto_catch(t, t_end, y, mode, P, ACT, clock, K, y_new, ytmp, aux1, dytmp, auxtmp, rtol,
-                      atol, grid, out, counters):
-    """A catch located by the open output's slip watch that the re-taken step reached short of
-    (the slip still above its band, by the input's dense output error): short true steps of the
-    whole system forward, by Newton on the true slip's rate, overshooting as SETTLE_OVERSHOOT;
-    a landing further past zero than the first one fell short is not taken (the run goes on
-    from the last short one as before). y is at t; dytmp, aux1 hold f(t, y). Returns (t, slip)
-    with y, dytmp, aux1 there."""
-    g = aux1[AUX_SLIP]
-    g_first = g
-    n = y.shape[0]
-    if g > SETTLE_BANDS * guard_tolerance(mode, y, aux1, P):
-        return t, g
-    for _ in range(SETTLE_STEPS):
-        rate = aux1[AUX_SLIP_RATE]
-        if not rate < 0.0:
-            break
-        dt = SETTLE_OVERSHOOT * g / -rate
-        if not (t + dt > t and t + dt <= t_end):
-            break
-        for i in range(n):
-            K[0, i] = dytmp[i]
-        take_step(DOPRI5, FULL, t, y, dt, mode, P, ACT, K, y_new, ytmp, aux1, rtol, atol, ERR_FULL,
-                  counters)
-        if aux1[AUX_SLIP] < -g_first:
-            rhs(t, y, mode, P, ACT, dytmp, aux1)   # too far past: stay, aux1 back at y
-            counters[C_RHS] += 1
-            break
-        if sample_due(grid, counters, t + dt):
-            emit_samples(False, False, DOPRI5, t, dt, y, y_new, K, t, dt, y, clock, mode, P, ACT,
-                         grid, out, counters, t + dt, ytmp, ytmp, dytmp, auxtmp)
-        t += dt
-        for i in range(n):
-            y[i] = y_new[i]
-            dytmp[i] = K[6, i]
-        g = aux1[AUX_SLIP]
-        if g <= guard_tolerance(mode, y, aux1, P):
-            break
-    return t, g
-
-
-@inline_kernel
-def _relax_twist(t1, h, y, y_new, mode, P, ACT, aux1, dytmp, counters):
-    """The open massless damped node over a step: θ = θ0·e^(−(c/k)·h) exactly, the spring's
-    energy into the damper; the auxiliaries (the slip) at the step's end refreshed."""
-    theta0 = y[TWIST]
-    theta1 = theta0 * math.exp(-P[P_C] / P[P_KD] * h)
-    y_new[TWIST] = theta1
-    y_new[W_DAMPING] = y[W_DAMPING] + 0.5 * P[P_C] * (theta0 * theta0 - theta1 * theta1)
-    project(t1, y_new, mode, P, ACT)
-    rhs(t1, y_new, mode, P, ACT, dytmp, aux1)
-    counters[C_RHS] += 1
-
-
-@inline_kernel
-def _retake_to(method, kind, err_idx, t, h_ev, y, y_new, K, mode, P, ACT, aux1, rtol, atol, ytmp,
-               dytmp, counters):
-    """A true step from (t, y) to the event at t + h_ev, not the interpolant: the state there
-    (y_new, K[6], aux1) is step-accurate. Returns the guard there."""
-    take_step(method, kind, t, y, h_ev, mode, P, ACT, K, y_new, ytmp, aux1, rtol, atol, err_idx,
-              counters)
-    if kind == MASSLESS:
-        _relax_twist(t + h_ev, h_ev, y, y_new, mode, P, ACT, aux1, dytmp, counters)
-    g1, _ = clutch_guard(mode, y_new, K[6], aux1, P)
-    return g1
-
-
-@kernel
-def _single_rate(method, kind, err_idx, t, h, clipped, t_end, y, y_new, K, mode, P, ACT, clock,
-                 armed, g0, aux1, rtol, atol, grid, out, counters, ytmp, dytmp, auxtmp, C, G):
-    """Witness function over an accepted step of the whole system: a crossing or a dip through
-    zero anywhere inside the step (on the guard's polynomial, witness.py) is located and a true
-    step re-taken to it; a guard found beyond its band at the step's end is 'late'. Emits the
-    samples up to the time reached and leaves the state there in y_new. Returns (t reached,
-    fire, g at that time)."""
-    g1, _ = clutch_guard(mode, y_new, K[6], aux1, P)
-    gtol = guard_tolerance(mode, y_new, aux1, P)
-    fire = NO_EVENT
-    theta = 1.0
-    settle = False   # G is the guard's polynomial at the located root: Newton may move it on
-    if armed and g0 > 0.0:
-        tol_theta = max(1e-13, 8.0 * 2.2e-16 * abs(t)) / h
-        if guard_polynomial(method, h, y, y_new, K, mode, P, C, G):
-            ga = G[0]
-            hi = -1.0
-            ghi = 0.0
-            if g1 < 0.0:
-                hi = 1.0
-                ghi = g1
-                gb = guard_value(G, 1.0)
-                theta = poly_root(G, 0.0, 1.0, ga, gb, tol_theta) if (
-                    ga > 0.0 and gb < 0.0) else 1.0
-            else:
-                tm, gm = lowest_point(G, -gtol)
-                if gm < -gtol:
-                    # a dip on the polynomial: is it one of the true guard?
-                    gt = guard_at(method, tm, t, h, y, y_new, K, mode, P, ACT, ytmp, dytmp, auxtmp,
-                                  counters)
-                    if gt < -gtol:
-                        hi = tm
-                        ghi = gt
-                        theta = poly_root(G, 0.0, tm, ga, gm, tol_theta) if ga > 0.0 else tm
-            if hi > 0.0:
-                fire = CROSSING
-                settle = kind != MASSLESS
-                theta = _confirm_root(method, t, h, y, y_new, K, mode, P, ACT, clock, theta, hi,
-                                      g0, ghi, gtol, tol_theta, G, ytmp, dytmp, auxtmp, counters)
-        else:
-            theta = _twist_crossing(method, t, h, y, y_new, K, mode, P, ACT, clock, g0, g1, G,
-                                    tol_theta, ytmp, dytmp, auxtmp, counters)
-            if theta >= 0.0:
-                fire = CROSSING
-    if fire == NO_EVENT and g1 < -gtol and not (armed and g0 > 0.0) and g0 >= -gtol:
-        # from inside the band (just after a switch) to below it: located if the guard left
-        # the band upwards first (a short phase: a heavy load's second catch, a short
-        # engagement), else found late
-        theta = _left_band_upwards(method, t, h, y, y_new, K, mode, P, ACT, clock, g1, gtol,
-                                   C, G, ytmp, dytmp, auxtmp, counters)
-        if theta >= 0.0:
-            fire = CROSSING
-    if fire == NO_EVENT and g1 < -gtol:
-        fire = FOUND_LATE  # the guard left its band on the wrong side: switch now
-    if fire == CROSSING:
-        short = -1.0     # θ of the last landing short of the band
-        g_first = 0.0    # how far the first one fell short: a landing may be as far past zero
-        for it in range(SETTLE_STEPS + 1):
-            h_ev = theta * h
-            g1 = _retake_to(method, kind, err_idx, t, h_ev, y, y_new, K, mode, P, ACT, aux1, rtol,
-                            atol, ytmp, dytmp, counters)
-            if not settle:
-                break
-            gtol1 = guard_tolerance(mode, y_new, aux1, P)
-            if g1 > gtol1:
-                if short < 0.0:
-                    if g1 > SETTLE_BANDS * gtol1:
-                        break
-                    g_first = g1
-                short = theta
-                rate = guard_rate(G, theta)
-                if it == SETTLE_STEPS or not rate < 0.0:
-                    break
-                theta_next = min(1.0, theta - SETTLE_OVERSHOOT * g1 / rate)
-                if not theta_next > theta:
-                    break
-                theta = theta_next
-            elif short >= 0.0 and g1 < -g_first:
-                # too far past (the polynomial's rate too flat there; a massless node, whose
-                # relaxation the polynomial does not follow, is never settled): back to the last
-                # short landing, and on from there by a new step
-                h_ev = short * h
-                g1 = _retake_to(method, kind, err_idx, t, h_ev, y, y_new, K, mode, P, ACT, aux1,
-                                rtol, atol, ytmp, dytmp, counters)
-                break
-            else:
-                break
-        if sample_due(grid, counters, t + h_ev):
-            emit_samples(False, False, method, t, h_ev, y, y_new, K, t, h_ev, y, clock, mode, P,
-                         ACT, grid, out, counters, t + h_ev, ytmp, ytmp, dytmp, auxtmp)
-        return t + h_ev, fire, g1
-    t_new = t_end if (clipped and t + h >= t_end) else t + h
-    if sample_due(grid, counters, t_new):
-        emit_samples(False, False, method, t, h, y, y_new, K, t, h, y, clock, mode, P, ACT, grid,
-                     out, counters, t_new, ytmp, ytmp, dytmp, auxtmp)
-    return t_new, fire, g1
 
 
 @kernel
@@ -531,7 +268,7 @@ def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, 
             counters[C_RHS] += 1
             g1 = aux1[AUX_SLIP]
             if fire == CROSSING and g1 > guard_tolerance(mode, y, aux1, P):
-                t, g1 = _creep_onto_catch(t, t_end, y, mode, P, ACT, clock, K, y_new, ytmp, aux1,
+                t, g1 = creep_onto_catch(t, t_end, y, mode, P, ACT, clock, K, y_new, ytmp, aux1,
                                           dytmp, auxtmp, rtol, atol, grid, out, counters)
             if fire == CROSSING and g1 > guard_tolerance(mode, y, aux1, P):
                 # the true state at the located time has not reached the guard (the dense
@@ -547,8 +284,8 @@ def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, 
                 continue
         else:
             if kind == MASSLESS:
-                _relax_twist(t + h, h, y, y_new, mode, P, ACT, aux1, dytmp, counters)
-            t_new, fire, g1 = _single_rate(
+                relax_twist(t + h, h, y, y_new, mode, P, ACT, aux1, dytmp, counters)
+            t_new, fire, g1 = watch_step(
                 method, kind, err_idx, t, h, clipped, t_end, y, y_new, K, mode, P, ACT, clock,
                 armed, g0, aux1, rtol, atol, grid, out, counters, ytmp, dytmp, auxtmp, C, G)
             t = t_new

@@ -31,7 +31,7 @@ FULL = 0
 OUTPUT = 1
 INPUT = 2  # the whole state, output subsystem frozen (it is integrated apart, see slip_watch.py)
 MASSLESS = 3  # the whole state, a massless damped node's twist (and its damping work) frozen:
-#               open, θ' = −(c/k)·θ is solved exactly apart from the step (hybrid.py)
+#               open, θ' = −(c/k)·θ is solved exactly apart from the step (guard_watch.relax_twist)
 # components under error control
 ERR_FULL = np.arange(N_DYNAMIC)
 ERR_INPUT = np.array(INPUT_DYNAMIC)

@@ -112,7 +112,7 @@ def guard_polynomial(method, h, y0, y1, K, mode, P, C, G):
         dense_coefficients(method, h, y0, y1, K, OMEGA4, C[1])
     elif P[P_J3] == 0.0:
         dense_coefficients(method, h, y0, y1, K, OMEGA4, C[1])
-        if P[P_KD] > 0.0:   # θ relaxes exactly (hybrid.py): ω3 = ω4 − r·θ0·e^(−r·h·θ)
+        if P[P_KD] > 0.0:   # θ relaxes exactly (guard_watch.py): ω3 = ω4 − r·θ0·e^(−r·h·θ)
             r = P[P_C] / P[P_KD]
             G[N_POLY] = -r * y0[TWIST]
             G[N_POLY + 1] = r * h
