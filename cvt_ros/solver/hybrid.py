@@ -9,8 +9,9 @@ after a step ('late') is switched at once and counted (C_LATE): a possibly misse
 caller reports. Samples on a caller-given grid are written from the dense output, so sampling
 never shortens a step.
 
-Step size: Dormand–Prince's error estimate with a PI controller (Gustafsson; Hairer's DOPRI5
-constants), restarted after each switch by the Hairer–Nørsett–Wanner estimate in the new mode.
+Step size: Dormand–Prince's error estimate through Söderlind's H211b digital filter (PI control,
+Hairer's DOPRI5 constants, for a step without a whole accepted one before it), restarted after
+each switch by the Hairer–Nørsett–Wanner estimate in the new mode.
 
 While the clutch is open an elastic output with J3 > 0 (or a massless damped node) runs apart
 from the input (slip_watch.py): exactly when it is linear, else on its own clock.
@@ -104,6 +105,14 @@ MAX_EVENTS_AT_ONE_TIME = 8
 PI_BETA = 0.04           # Hairer's DOPRI5: h·err^−(0.2 − 0.75β)·err_old^β
 PI_ALPHA = 0.2 - 0.75 * PI_BETA
 PI_SAFETY = 0.8
+# Söderlind's H211b digital filter (b = 4, k = 5): h·(err·err_old)^(−1/(b·k))·(h/h_old)^(−1/b).
+# Where the rocker's speed makes the error estimate swing between steps of nearly the same size
+# (its leading term changes sign several times a crank turn), the PI controller grew the step
+# into the next lobe and had it rejected once or twice a turn, at some tolerances and not at
+# others; the filter smooths the step sequence instead (BENCHMARKS.md, Stepping experiments)
+FILTER_B = 4.0
+FILTER_BETA = 1.0 / (FILTER_B * 5.0)
+FILTER_ALPHA = 1.0 / FILTER_B
 ERR_OLD_START = 1e-4
 
 
@@ -176,6 +185,7 @@ def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, 
     budget = S[S_STEP_BUDGET]
     rejected_last = False
     restarted = False   # no step accepted yet since the last switch
+    h_old = -1.0        # the last accepted whole step (≤ 0: none since a switch, clip or rejection)
 
     while t < t_end:
         if counters[C_STEPS] - steps0 > budget:
@@ -223,16 +233,23 @@ def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, 
                     err < math.inf and finite_state(y_new)) else MIN_FACTOR
                 h_prop = h * min(factor, 1.0)
                 rejected_last = True
+                h_old = -1.0
                 if h_prop < 1e-14 * max(1.0, abs(t)):
                     counters[C_STATUS] = STATUS_STEP_TOO_SMALL
                     break
                 continue
-            # PI control of the next step (no growth right after a rejection)
+            # the next step: filtered after a whole accepted step, else PI control (no growth
+            # right after a rejection)
             if err == 0.0:
                 factor = MAX_FACTOR
+            elif h_old > 0.0:
+                factor = min(MAX_FACTOR, max(MIN_FACTOR, PI_SAFETY * (
+                    max(err, ERR_OLD_START) * err_old) ** -FILTER_BETA
+                    * (h / h_old) ** -FILTER_ALPHA))
             else:
                 factor = min(MAX_FACTOR, max(MIN_FACTOR, PI_SAFETY * err ** -PI_ALPHA
                                              * err_old ** PI_BETA))
+            h_old = -1.0 if clipped else h
             if rejected_last:
                 factor = min(factor, 1.0)
             if restarted and not clipped:
@@ -363,6 +380,7 @@ def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, 
                 h_prop = min(h_prop, h_io[H_RESTART + mode])
             restarted = True
             err_old = ERR_OLD_START
+            h_old = -1.0
         if t > t_last_event:
             t_last_event = t
             stalled = 0
