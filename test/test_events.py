@@ -106,6 +106,26 @@ def test_a_near_miss_is_a_matter_of_tolerance():
     assert [switch_count(values, rtol, 0.3)[0] for rtol in (1e-5, 1e-7)] == [reference] * 2
 
 
+@pytest.mark.xfail(strict=True, reason=(
+    'open defect (issue 12): at rtol 1e-4 this machine switches twice fewer than at 1e-5 … '
+    '1e-10 (a short engagement lost), with the PI step control before bb9e5a2 as with the '
+    'H211b filter after it. Of 3000 random machines (hypothesis seed 20261127), 3 with the '
+    'filter and 4 with PI control switch differently at rtol 1e-4, none at 1e-5 … 1e-10. '
+    'Seen in another machine: an open-phase step of 5.5 ms at '
+    'rtol 1e-4 over which the slip watch missed the first contact'))
+def test_a_random_machine_switches_at_rtol_1e_4_as_at_every_tighter_one():
+    values = dict(load_scene('paper'), **{
+        'linkage.crank_length': 0.07800527153617962, 'inertia.motor': 0.02,
+        'inertia.rocker': 0.0005000000000000001, 'inertia.clutch_driven': 0.00010000000000000009,
+        'inertia.output': 0.6765676057669752, 'shaft.stiffness': 199.99999999999991,
+        'shaft.damping': 0.0010000000000000002, 'load.torque': 1.101054022132746,
+        'initial.crank_speed': 150.0}, **VARIANTS['reduced, exact output'])
+    reference, result = switch_count(values, 1e-10, 0.3, 2e-5)
+    assert closest_miss(result) > NEAR_MISS   # not a near miss: a contact the reference makes
+    assert switch_count(values, 1e-5, 0.3)[0] == reference
+    assert switch_count(values, 1e-4, 0.3)[0] == reference
+
+
 @pytest.mark.parametrize('scene', ['paper', 'stiff_shaft'])
 def test_the_output_error_falls_with_the_tolerance(scene):
     values = load_scene(scene)
