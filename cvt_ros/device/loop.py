@@ -455,11 +455,18 @@ class RunLoop:
         self.take_snapshot(time.monotonic_ns())
 
     def _finish_waiters(self, message):
+        """At the loop's end: parameter changes still queued are carried out at the last
+        simulated time (their callers were told they were accepted, so the recording must
+        hold them: a stop right after `ros2 param set` lost the change); waiting service
+        calls fail with ``message``."""
         while True:
             entry = self._pop()
             if entry is None:
                 return
-            if len(entry) == 2 and isinstance(entry[1], Waiter):
+            if entry[0] == 'params':
+                with self.lock:
+                    self._apply(entry)
+            elif len(entry) == 2 and isinstance(entry[1], Waiter):
                 entry[1].finish(False, message)
 
     # ------------------------------------------------------------------ publishing
