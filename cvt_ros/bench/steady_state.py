@@ -28,6 +28,7 @@ from ..solver import advance_layout as AL
 from ..solver.output import COL
 from ..solver.reference import solve_reference
 from ..solver.simulator import Simulator
+from .measure import relative
 from .report import fmt, table
 
 SCENES = ('paper', 'conveyor', 'stiff_shaft')
@@ -131,16 +132,16 @@ def steady_row(name, span, with_scipy=True):
            'per_rhs_seq': per_rhs_seq, 'floor': n_rhs * per_rhs,
            'floor_seq': n_rhs * per_rhs_seq, 'steps': int(d[AL.C_STEPS]),
            'rejected': int(d[AL.C_REJECTED]), 'switches': switches,
-           'phi4_err': abs(sim.sample()[COL['phi4']] - phi4_ref) / abs(phi4_ref),
+           'phi4_err': relative(sim.sample()[COL['phi4']], phi4_ref),
            'loose_wall': loose_wall, 'loose_rhs': int(loose_d[AL.C_RHS]),
            'loose_switches': loose_switches,
-           'loose_err': abs(loose.sample()[COL['phi4']] - phi4_ref) / abs(phi4_ref)}
+           'loose_err': relative(loose.sample()[COL['phi4']], phi4_ref)}
     if with_scipy:
         r = solve_reference(values, WARM + span, method='DOP853', start=start,
                             **SCIPY_TOLERANCES)
         row['scipy_wall'] = r.wall_time
         row['scipy_nfev'] = r.nfev
-        row['scipy_err'] = abs(r.y[L.PHI4] + start.turns_phi4 - phi4_ref) / abs(phi4_ref)
+        row['scipy_err'] = relative(r.y[L.PHI4] + start.turns_phi4, phi4_ref)
         row['scipy_switches'] = len(r.switch_times)
     return row
 

@@ -281,7 +281,7 @@ class RunLoop:
                 self.logger.error(f"simulation loop error: {exc!r}\n{traceback.format_exc()}")
                 self.device.fault = f"internal error: {exc!r}"
                 self._ahead = None
-        self._finish_waiters('the node is shutting down')
+        self._close_queue('the node is shutting down')
 
     def _iteration(self):
         self.wake_event.clear()
@@ -454,7 +454,7 @@ class RunLoop:
         self._publish_present()
         self.take_snapshot(time.monotonic_ns())
 
-    def _finish_waiters(self, message):
+    def _close_queue(self, message):
         """At the loop's end: parameter changes still queued are carried out at the last
         simulated time (their callers were told they were accepted, so the recording must
         hold them: a stop right after `ros2 param set` lost the change); waiting service

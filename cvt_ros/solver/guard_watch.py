@@ -116,7 +116,7 @@ def _left_band_upwards(method, t, h, y, y_new, K, mode, P, ACT, clock, g1, gtol,
 
 @kernel
 def creep_onto_catch(t, t_end, y, mode, P, ACT, clock, K, y_new, ytmp, aux1, dytmp, auxtmp, rtol,
-                      atol, grid, out, counters):
+                     atol, grid, out, counters):
     """A catch located by the open output's slip watch that the re-taken step reached short of
     (the slip still above its band, by the input's dense output error): short true steps of the
     whole system forward, by Newton on the true slip's rate, overshooting as SETTLE_OVERSHOOT;
@@ -184,7 +184,7 @@ def _retake_to(method, kind, err_idx, t, h_ev, y, y_new, K, mode, P, ACT, aux1, 
 
 @kernel
 def watch_step(method, kind, err_idx, t, h, clipped, t_end, y, y_new, K, mode, P, ACT, clock,
-                 armed, g0, aux1, rtol, atol, grid, out, counters, ytmp, dytmp, auxtmp, C, G):
+               armed, g0, aux1, rtol, atol, grid, out, counters, ytmp, dytmp, auxtmp, C, G):
     """Witness function over an accepted step of the whole system: a crossing or a dip through
     zero anywhere inside the step (on the guard's polynomial, witness.py) is located and a true
     step re-taken to it; a guard found beyond its band at the step's end is 'late'. Emits the

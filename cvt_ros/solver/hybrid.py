@@ -286,7 +286,7 @@ def advance(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, 
             g1 = aux1[AUX_SLIP]
             if fire == CROSSING and g1 > guard_tolerance(mode, y, aux1, P):
                 t, g1 = creep_onto_catch(t, t_end, y, mode, P, ACT, clock, K, y_new, ytmp, aux1,
-                                          dytmp, auxtmp, rtol, atol, grid, out, counters)
+                                         dytmp, auxtmp, rtol, atol, grid, out, counters)
             if fire == CROSSING and g1 > guard_tolerance(mode, y, aux1, P):
                 # the true state at the located time has not reached the guard (the dense
                 # output's error at loose tolerances): not yet, go on from here, armed (the
