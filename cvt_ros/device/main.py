@@ -12,6 +12,7 @@ from ..parameters import ParameterError
 from ..physics.linkage import GrashofError
 from ..scene import SceneError, params_file_problem
 from .node import DEFAULT_SCENE, CvtSimNode
+from .subscription_wait import RCLError
 
 # The loop thread must get the GIL soon after its deadline even while the executor thread is busy
 # (a flood of commands): Python's default 5 ms switch interval would be a 5 ms jitter.
@@ -100,6 +101,11 @@ def _run(argv):
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RCLError:
+        # a signal's shutdown of the context can land while the executor builds its wait set:
+        # rcl refuses the dead context (seen once with SIGTERM on a busy machine)
+        if node.context.ok():
+            raise
     finally:
         node.stop()
         executor.shutdown(timeout_sec=0.5)
