@@ -21,6 +21,7 @@ from .dense_step import emit_samples, guard_at, locate_root, sample_due, take_st
 from .steppers import DOPRI5, ERR_FULL, FULL, MASSLESS
 from .witness import (
     N_POLY,
+    first_root,
     guard_polynomial,
     guard_rate,
     guard_value,
@@ -205,8 +206,7 @@ def watch_step(method, kind, err_idx, t, h, clipped, t_end, y, y_new, K, mode, P
                 hi = 1.0
                 ghi = g1
                 gb = guard_value(G, 1.0)
-                theta = poly_root(G, 0.0, 1.0, ga, gb, tol_theta) if (
-                    ga > 0.0 and gb < 0.0) else 1.0
+                theta = first_root(G, ga, gb, tol_theta) if (ga > 0.0 and gb < 0.0) else 1.0
             else:
                 tm, gm = lowest_point(G, -gtol)
                 if gm < -gtol:

@@ -97,6 +97,7 @@ _KIND_NAMES = {0: 'release', 1: 'engage', 2: 'engage_impact', 3: 'graze'}
 STEP_BUDGET = 20_000_000      # steps one advance call may take (≥ 20 s of wall time): watchdog
 MAX_KEPT_ROWS = 10_000_000    # samples a run keeps in memory (1.8 GB); beyond: stream them
 ROWS_PER_BLOCK = 100_000      # samples written per compiled call
+RUN_CHUNK = 1.0               # [s] simulated per compiled call of a run (and progress report)
 SLOW_STEPS_PER_SECOND = 2e6   # steps per simulated second beyond which a run is warned about
 DP5_STABILITY = 3.3           # Dormand–Prince's stability interval, |h·λ| (imaginary axis)
 
@@ -477,7 +478,10 @@ class Simulator:
         switches = []
         objects = keep_samples or on_switches is not None
         wall0 = time.perf_counter()
-        chunk = min(max(sample_dt, min(1.0, duration / 50.0)), ROWS_PER_BLOCK * sample_dt)
+        # each compiled call ends a step at its chunk's end: chunks of fixed length (not of the
+        # sample interval or the duration) keep the solution independent of how it is sampled,
+        # and a shorter run's samples a prefix of a longer one's
+        chunk = min(RUN_CHUNK, ROWS_PER_BLOCK * sample_dt)
         if self.S[AL.S_METHOD] == RK4:   # whole fixed steps per call: the grid is not cut short
             chunk = math.ceil(chunk / self.h_fixed - 1e-9) * self.h_fixed
         k_next = 1   # index of the next sample

@@ -130,6 +130,40 @@ def _split_dip(exact, t, h, tau, hs, z0, clock, P, Cv, ztmp, g0, d0, g1, d1, m4,
 
 
 @kernel
+def _true_beyond(exact, t, h, y, K, tau, hs, z0, clock, P, ACT, ycomb, ztmp, m, gm, side,
+                 gtol):
+    """(σ, slip) where the true slip (the linkage's rocker speed) stands beyond its band on one
+    side (side -1: below -gtol, +1: above gtol) in a look whose polynomial slip does so at
+    σ = m, the true slip there being gm; else (-1, gm). The two slips differ by the rocker
+    speed interpolant's error, and the polynomial's point is where it first goes beyond the
+    band, not its extremum: the true slip can still be inside the band there and far beyond it
+    nearby (rtol 1e-4, a 6 ms step: +0.01 rad/s at the polynomial's dip, -0.30 rad/s 0.3 ms
+    later; a 7.5 ms step after a release: the true slip up to +0.012 rad/s 0.3 ms before the
+    polynomial's highest point, where it is -0.1 rad/s). So the true slip's extremum on that
+    side is searched for by golden sections of [0, 1] about m."""
+    a = 0.0
+    b = 1.0
+    fm = side * gm
+    while b - a > 1e-9:
+        x = m - 0.381966 * (m - a) if m - a > b - m else m + 0.381966 * (b - m)
+        gx = true_split_slip(exact, x, t, h, y, K, tau, hs, z0, clock, P, ACT, ycomb, ztmp)
+        if side * gx > gtol:
+            return x, gx
+        if side * gx > fm:
+            if x < m:
+                b = m
+            else:
+                a = m
+            m = x
+            fm = side * gx
+        elif x < m:
+            a = x
+        else:
+            b = x
+    return -1.0, gm
+
+
+@kernel
 def _left_band_upwards(exact, t, h, tau, hs, z0, clock, P, Cv, ztmp, g0, d0, g1, d1, gtol):
     """σ in (0, 1) where the slip of a look that ends below its band stood above it (the
     Hermite cubic's highest point, else the look's middle), or -1: the crossing down lies
@@ -326,6 +360,14 @@ def split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arme
             # engagement 0.6 ms after its release), located after that; else found late
             lo = _left_band_upwards(exact, t, h, tau, hs, z, clock, P, Cv, ztmp, g0,
                                     hs * (dw3_0 - dv0), g1, hs * (dw3_1 - dv1), gtol)
+            if lo < 0.0:
+                # the cubic misses a small rise early in a long look (a 5 ms look whose true
+                # slip stands at most 0.012 rad/s above the band, 0.3 ms after the release):
+                # the true slip's highest point
+                gm = true_split_slip(exact, 0.5, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb,
+                                     ztmp)
+                lo, _ = _true_beyond(exact, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb, ztmp,
+                                     0.5, gm, 1.0, gtol)
             if lo > 0.0:
                 fire = CROSSING
         elif armed and g0 > 0.0:
@@ -353,6 +395,22 @@ def split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arme
                                     ztmp)
             gt_lo = true_split_slip(exact, lo, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb,
                                     ztmp)
+            if hi < 1.0 and gt_hi >= 0.0:
+                # a dip of the polynomial slip where the true slip is not below zero: is the
+                # true slip's own dip further on?
+                sm, gm = _true_beyond(exact, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb, ztmp,
+                                      hi, gt_hi, -1.0, gtol)
+                if sm >= 0.0:
+                    hi = sm
+                    gt_hi = gm
+            elif lo > 0.0 and gt_lo <= gtol:
+                # the polynomial slip left the band upwards at lo, the true slip not there:
+                # did it nearby?
+                sm, gm = _true_beyond(exact, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb, ztmp,
+                                      lo, gt_lo, 1.0, gtol)
+                if sm >= 0.0:
+                    lo = sm
+                    gt_lo = gm
             if gt_hi < 0.0 < gt_lo:
                 # started at the root of the sub-step's Hermite cubic of the slip (its ends'
                 # values and exact rates), with its slope
