@@ -276,7 +276,7 @@ def test_a_release_whose_torque_dip_fits_inside_one_step_is_caught():
 def test_the_exact_output_sees_every_short_reengagement_on_the_stiff_shaft():
     # was a defect: the slip dip test on each sub-interval used the rocker's mean acceleration;
     # now its exact rate at both ends, and pieces halved where the cubic's error bound could
-    # hide a dip (slip_watch._split_dip)
+    # hide a dip (slip_look.split_dip)
     values = dict(load_scene('stiff_shaft'), **{'solver.rtol': 1e-12, 'solver.atol': 1e-14,
                                                'solver.max_step': 1e-3})
     counts, min_slip = {}, {}

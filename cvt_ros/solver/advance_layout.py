@@ -30,7 +30,7 @@ C_RHS = 8          # right-hand-side evaluations (every one, in any mode)
 C_LATE = 9         # guards found beyond their band after a step: possibly missed events
 N_COUNTERS = 10
 
-DIP_STACK = 24   # pieces slip_watch._split_dip may hold at once
+DIP_STACK = 24   # pieces slip_look.split_dip may hold at once
 N_MODAL = 2 * 3 * 2   # the modal coordinates W, complex (2, 3), as float64s
 # the working arrays of one advance call, carved out of one float64 array (``scratch``) in
 # this order: K, y_new, ytmp, dytmp, ycomb; aux0, aux1, auxtmp; Ko, z, z_new, ztmp, zs; C, G;

@@ -5,22 +5,22 @@ exactly when it is linear (physics/output_exact.py), else integrated on its own 
 The re-engagement guard is the slip s = ω3 − v (output node speed minus rocker speed). It is
 watched on sub-intervals of the step, each checked for a crossing and, by Hermite cubics of the
 slip with its exact rates under an error bound, for a dip that starts and ends inside it
-(``_split_dip``); a whole step is skipped when a modal lower bound of the slip proves that no
-catch can hide in it (``_slip_floor``).
+(slip_look.py); a whole step is skipped when a modal lower bound of the slip proves that no
+catch can hide in it (``_slip_floor``). The rocker speed in those looks is the input step's dense
+polynomial; a dip or rise it shows is confirmed on the true slip (the linkage's rocker speed),
+whose own extremum is searched for where the two disagree.
 """
 import math
 
 from ..physics.clutch import SLIP_TOLERANCE
 from ..physics.compiled import inline_kernel, kernel
-from ..physics.dynamics import disengaged_output_rates, output_rhs
+from ..physics.dynamics import output_rhs
 from ..physics.layout import (
     N_OUTPUT,
     OMEGA2,
     OUTPUT_STATES,
     P_OUTPUT_RING,
     Z_OMEGA3,
-    Z_OMEGA4,
-    Z_TWIST,
 )
 from ..physics.output_exact import (
     modal_coordinates,
@@ -41,10 +41,16 @@ from .advance_layout import (
 from .dense_step import (
     emit_samples,
     locate_root,
-    output_state,
     sample_due,
     take_step,
     true_split_slip,
+)
+from .slip_look import (
+    left_band_upwards,
+    omega3_rate,
+    poly_rate,
+    split_dip,
+    true_beyond,
 )
 from .steppers import (
     DOPRI5,
@@ -60,11 +66,11 @@ from .steppers import (
     dopri5_step,
     initial_step,
 )
-from .witness import N_POLY, hermite_minimum, hermite_root, poly_value
+from .witness import N_POLY, hermite_root, poly_value
 
 # The open output's slip is watched on sub-intervals, in rad of its fastest mode. A look is the
 # Hermite cubic of the slip under its error bound (|a|·|λ|⁴·hs⁴/384 for a mode of amplitude a),
-# refined where the bound could hide a dip (_split_dip), so the length trades looks against
+# refined where the bound could hide a dip (slip_look.split_dip), so the length trades looks against
 # refinements: on the stiff shaft 3 rad (bound 0.21·|a|) took 62 % fewer looks than 0.75 rad
 # everywhere and 16–24 % less time, the same switches. Near its band (just after a release, or
 # after a crossing of the rocker speed's interpolant alone) a slip is not watched for a crossing,
@@ -73,107 +79,6 @@ from .witness import N_POLY, hermite_minimum, hermite_root, poly_value
 EXACT_PHASE_STEP = 0.75  # [rad] near the band, and while a fast real mode is alive
 ARMED_PHASE_STEP = 3.0   # [rad] while the slip is clearly positive (armed, > 2 bands)
 OUTPUT_RTOL = 1e-7   # loosest tolerance of the open output integrated on its own clock
-
-
-@inline_kernel
-def _split_slip(exact, sigma, t, h, tau, hs, z0, clock, P, Cv, ztmp):
-    """Slip s = ω3 − v at tau + σ·hs inside a split step [rad/s]: ω3 from the output, v from the
-    rocker speed's dense polynomial Cv over the input step."""
-    output_state(exact, sigma, t, tau, hs, z0, clock, P, ztmp, False)
-    return ztmp[Z_OMEGA3] - poly_value(Cv, (tau + sigma * hs - t) / h)
-
-
-@kernel
-def _split_dip(exact, t, h, tau, hs, z0, clock, P, Cv, ztmp, g0, d0, g1, d1, m4, gtol):
-    """The slip's lowest point inside the sub-interval [tau, tau+hs] if it falls below -gtol:
-    (σ, slip there) or (-1, inf). g, d: the slip and its σ-rate at both ends; m4 a bound on
-    |d⁴s/dσ⁴|. The Hermite cubic of each piece is trusted only where its error bound
-    m4·w⁴/384 cannot hide a dip; elsewhere the piece is halved (exact values and rates)."""
-    tm, pm = hermite_minimum(g0, d0, g1, d1)
-    if min(pm, g0, g1) - m4 / 384.0 > -gtol:
-        return -1.0, math.inf   # the usual case, settled without the refinement's stack
-    stack = clock[4]   # (6, DIP_STACK): the pieces still to look at
-    sa = stack[0]
-    sb = stack[1]
-    ga = stack[2]
-    gb = stack[3]
-    da = stack[4]
-    db = stack[5]
-    top = 0
-    sa[0], sb[0], ga[0], gb[0], da[0], db[0] = 0.0, 1.0, g0, g1, d0, d1
-    while top >= 0:
-        a, b, g_a, g_b, d_a, d_b = sa[top], sb[top], ga[top], gb[top], da[top], db[top]
-        top -= 1
-        w = b - a
-        tm, pm = hermite_minimum(g_a, w * d_a, g_b, w * d_b)
-        low = min(pm, g_a, g_b)
-        err = m4 * w ** 4 / 384.0
-        if low - err > -gtol:
-            continue        # no dip can hide here
-        if tm >= 0.0:
-            sm = a + tm * w
-            gm = _split_slip(exact, sm, t, h, tau, hs, z0, clock, P, Cv, ztmp)
-            if gm < -gtol:
-                return sm, gm
-        if top + 2 >= sa.shape[0] or w < 1e-6:
-            continue
-        mid = 0.5 * (a + b)
-        gmid = _split_slip(exact, mid, t, h, tau, hs, z0, clock, P, Cv, ztmp)
-        if gmid < -gtol:
-            return mid, gmid
-        dmid = hs * (_omega3_rate(ztmp, P) - _poly_rate(Cv, (tau + mid * hs - t) / h, h))
-        top += 1
-        sa[top], sb[top], ga[top], gb[top], da[top], db[top] = mid, b, gmid, g_b, dmid, d_b
-        top += 1
-        sa[top], sb[top], ga[top], gb[top], da[top], db[top] = a, mid, g_a, gmid, d_a, dmid
-    return -1.0, math.inf
-
-
-@kernel
-def _true_beyond(exact, t, h, y, K, tau, hs, z0, clock, P, ACT, ycomb, ztmp, m, gm, side,
-                 gtol):
-    """(σ, slip) where the true slip (the linkage's rocker speed) stands beyond its band on one
-    side (side -1: below -gtol, +1: above gtol) in a look whose polynomial slip does so at
-    σ = m, the true slip there being gm; else (-1, gm). The two slips differ by the rocker
-    speed interpolant's error, and the polynomial's point is where it first goes beyond the
-    band, not its extremum: the true slip can still be inside the band there and far beyond it
-    nearby (rtol 1e-4, a 6 ms step: +0.01 rad/s at the polynomial's dip, -0.30 rad/s 0.3 ms
-    later; a 7.5 ms step after a release: the true slip up to +0.012 rad/s 0.3 ms before the
-    polynomial's highest point, where it is -0.1 rad/s). So the true slip's extremum on that
-    side is searched for by golden sections of [0, 1] about m."""
-    a = 0.0
-    b = 1.0
-    fm = side * gm
-    while b - a > 1e-9:
-        x = m - 0.381966 * (m - a) if m - a > b - m else m + 0.381966 * (b - m)
-        gx = true_split_slip(exact, x, t, h, y, K, tau, hs, z0, clock, P, ACT, ycomb, ztmp)
-        if side * gx > gtol:
-            return x, gx
-        if side * gx > fm:
-            if x < m:
-                b = m
-            else:
-                a = m
-            m = x
-            fm = side * gx
-        elif x < m:
-            a = x
-        else:
-            b = x
-    return -1.0, gm
-
-
-@kernel
-def _left_band_upwards(exact, t, h, tau, hs, z0, clock, P, Cv, ztmp, g0, d0, g1, d1, gtol):
-    """σ in (0, 1) where the slip of a look that ends below its band stood above it (the
-    Hermite cubic's highest point, else the look's middle), or -1: the crossing down lies
-    after it. g, d: the slip and its σ-rate at both ends."""
-    tm, pm = hermite_minimum(-g0, -d0, -g1, -d1)
-    if tm > 0.0 and _split_slip(exact, tm, t, h, tau, hs, z0, clock, P, Cv, ztmp) > gtol:
-        return tm
-    if _split_slip(exact, 0.5, t, h, tau, hs, z0, clock, P, Cv, ztmp) > gtol:
-        return 0.5
-    return -1.0
 
 
 @inline_kernel
@@ -217,22 +122,6 @@ def _slip_floor(h, g0, g1, LIN, W, Cv, modes):
     for k in range(2, N_POLY):
         curv += k * (k - 1) * abs(Cv[k])   # |d²v/dθ²| ≤ Σ k(k−1)|c_k|
     return min(f0, f1) - amp - curv / 8.0
-
-
-@inline_kernel
-def _poly_rate(C, x, h):
-    """d/dt of the polynomial C(θ) over a step h, at θ = x."""
-    v = 0.0
-    for k in range(N_POLY - 1, 0, -1):
-        v = v * x + k * C[k]
-    return v / h
-
-
-@inline_kernel
-def _omega3_rate(z, P):
-    """ω3' of the open output subsystem (J3 > 0) [rad/s²]."""
-    _, dw3, _, _, _ = disengaged_output_rates(z[Z_TWIST], z[Z_OMEGA3], z[Z_OMEGA4], P)
-    return dw3
 
 
 @inline_kernel
@@ -303,7 +192,7 @@ def split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arme
             h_near = EXACT_PHASE_STEP / ring
         fast_rate, fast_until = _fast_real_modes(
             t, h, LIN, W, SLIP_TOLERANCE * (1.0 + abs(z[Z_OMEGA3])))
-        dw3_0 = _omega3_rate(z, P)
+        dw3_0 = omega3_rate(z, P)
     else:
         output_rhs(z, P, Ko[0])
         dw3_0 = Ko[0, Z_OMEGA3]
@@ -315,7 +204,7 @@ def split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arme
     v4 = 24.0 * abs(Cv[4]) / h ** 4   # bound of the rocker speed's 4th derivative [rad/s⁵]
     tau = t
     fire = NO_EVENT
-    dv0 = _poly_rate(Cv, 0.0, h)
+    dv0 = poly_rate(Cv, 0.0, h)
     gtol = SLIP_TOLERANCE * (1.0 + abs(Cv[0]) + abs(z[Z_OMEGA3]))   # the slip's band at tau
     factor = 1.0
     while tau < t1:
@@ -329,7 +218,7 @@ def split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arme
             if last:
                 hs = t1 - tau
             output_at(tau + hs - t, zs, P, LIN, W, z_new, False)
-            dw3_1 = _omega3_rate(z_new, P)
+            dw3_1 = omega3_rate(z_new, P)
         else:
             hs = min(h_out, t1 - tau)
             last = tau + hs >= t1
@@ -348,7 +237,7 @@ def split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arme
         counters[C_SUBSTEPS] += 1
         x1 = 1.0 if last else (tau + hs - t) / h
         v1 = poly_value(Cv, x1)
-        dv1 = _poly_rate(Cv, x1, h)
+        dv1 = poly_rate(Cv, x1, h)
         g1 = z_new[Z_OMEGA3] - v1
         gtol = SLIP_TOLERANCE * (1.0 + abs(v1) + abs(z_new[Z_OMEGA3]))
         sigma = 1.0
@@ -358,16 +247,16 @@ def split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arme
             # a look from inside the band (just after a release) to below it: a catch if the
             # slip left the band upwards first (a short open interval: a heavy load's second
             # engagement 0.6 ms after its release), located after that; else found late
-            lo = _left_band_upwards(exact, t, h, tau, hs, z, clock, P, Cv, ztmp, g0,
-                                    hs * (dw3_0 - dv0), g1, hs * (dw3_1 - dv1), gtol)
+            lo = left_band_upwards(exact, t, h, tau, hs, z, clock, P, Cv, ztmp, g0,
+                                   hs * (dw3_0 - dv0), g1, hs * (dw3_1 - dv1), gtol)
             if lo < 0.0:
                 # the cubic misses a small rise early in a long look (a 5 ms look whose true
                 # slip stands at most 0.012 rad/s above the band, 0.3 ms after the release):
                 # the true slip's highest point
                 gm = true_split_slip(exact, 0.5, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb,
                                      ztmp)
-                lo, _ = _true_beyond(exact, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb, ztmp,
-                                     0.5, gm, 1.0, gtol)
+                lo, _ = true_beyond(exact, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb, ztmp,
+                                    0.5, gm, 1.0, gtol)
             if lo > 0.0:
                 fire = CROSSING
         elif armed and g0 > 0.0:
@@ -382,8 +271,8 @@ def split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arme
                 else:
                     dense_coefficients(DOPRI5, hs, z, z, Ko, Z_OMEGA3, Cz)
                     m4 = 24.0 * abs(Cz[4]) + hs ** 4 * v4
-                tm, gm = _split_dip(exact, t, h, tau, hs, z, clock, P, Cv, ztmp, g0,
-                                    hs * (dw3_0 - dv0), g1, hs * (dw3_1 - dv1), m4, gtol)
+                tm, gm = split_dip(exact, t, h, tau, hs, z, clock, P, Cv, ztmp, g0,
+                                   hs * (dw3_0 - dv0), g1, hs * (dw3_1 - dv1), m4, gtol)
                 if tm >= 0.0:
                     fire = CROSSING
                     hi = tm
@@ -398,16 +287,16 @@ def split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arme
             if hi < 1.0 and gt_hi >= 0.0:
                 # a dip of the polynomial slip where the true slip is not below zero: is the
                 # true slip's own dip further on?
-                sm, gm = _true_beyond(exact, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb, ztmp,
-                                      hi, gt_hi, -1.0, gtol)
+                sm, gm = true_beyond(exact, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb, ztmp,
+                                     hi, gt_hi, -1.0, gtol)
                 if sm >= 0.0:
                     hi = sm
                     gt_hi = gm
             elif lo > 0.0 and gt_lo <= gtol:
                 # the polynomial slip left the band upwards at lo, the true slip not there:
                 # did it nearby?
-                sm, gm = _true_beyond(exact, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb, ztmp,
-                                      lo, gt_lo, 1.0, gtol)
+                sm, gm = true_beyond(exact, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb, ztmp,
+                                     lo, gt_lo, 1.0, gtol)
                 if sm >= 0.0:
                     lo = sm
                     gt_lo = gm
