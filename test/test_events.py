@@ -29,6 +29,9 @@ SPAN = 0.5
 # error, and at rtol 1e-4 after 0.3 s the slip is off by 5e-4 of the speeds on the median random
 # machine, by 5e-3 on one in ten (3000 machines, BENCHMARKS.md)
 NEAR_MISS = 1e-2
+# a run's own sample this far outside its mode (relative, as NEAR_MISS) is a missed event; a
+# located one leaves at most a sample beside it within its location error (7e-4 seen at rtol 1e-4)
+STRAY = 1e-3
 # random machines are sampled this finely, so that near misses and strays are seen
 FINE = 2e-5
 
@@ -144,7 +147,7 @@ def test_random_machines_switch_the_same_at_every_tolerance(values, variant):
     runs = {(rtol, atol): switch_count(values, rtol, 0.3, FINE, atol)
             for rtol, atol in ((1e-4, None), (1e-7, None), (1e-4, default_atol))}
     for settings_, (_, run) in runs.items():
-        assert stray(run) < NEAR_MISS, settings_
+        assert stray(run) < STRAY, settings_
     every_run = [reference_run] + [run for _, run in runs.values()]
     assume(min(margin(run) for run in every_run) > NEAR_MISS)
     # a switch within 1 ms of the end may fall on either side of it, as the tolerance decides
