@@ -44,16 +44,20 @@ def switch_count(values, rtol, span=SPAN, sample_dt=0.01, atol=None):
     return len([s for s in result.switches if s.kind != 'graze']), result
 
 
+def engaged(result):
+    """Which samples are of the engaged clutch."""
+    return result.column('engaged') == 1.0
+
+
 def relative_slip(result):
     """ω3 − ω2 of every sample, relative to the larger speed (at least 1 rad/s)."""
-    s = result.samples
-    w2, w3 = s[:, COL['omega2']], s[:, COL['omega3']]
+    w2, w3 = result.column('omega2'), result.column('omega3')
     return (w3 - w2) / np.maximum(1.0, np.maximum(abs(w2), abs(w3)))
 
 
 def relative_clutch_torque(result):
     """The clutch torque of every sample, relative to the run's largest."""
-    torque = result.samples[:, COL['clutch_torque']]
+    torque = result.column('clutch_torque')
     return torque / max(1e-9, float(abs(torque).max()))
 
 
@@ -67,23 +71,22 @@ def closest_miss(result):
     """The smallest relative slip at a minimum inside an open stretch of the samples: how near
     the clutch came to a contact it did not make (the slip running down to an engagement has no
     inner minimum)."""
-    return _inner_minimum(relative_slip(result), result.samples[:, COL['engaged']] == 0.0)
+    return _inner_minimum(relative_slip(result), ~engaged(result))
 
 
 def closest_hold(result):
     """The smallest relative clutch torque at a minimum inside an engaged stretch: how near the
     clutch came to a release it did not make."""
-    return _inner_minimum(relative_clutch_torque(result),
-                          result.samples[:, COL['engaged']] == 1.0)
+    return _inner_minimum(relative_clutch_torque(result), engaged(result))
 
 
 def stray(result):
     """How far a sample stands outside its own mode: an open clutch's relative slip below zero,
     an engaged clutch's relative torque below zero. A run whose own trajectory crossed its
     guard where no switch was made has missed an event, whatever the reference says."""
-    engaged = result.samples[:, COL['engaged']] == 1.0
-    return max(0.0, -float(relative_slip(result)[~engaged].min(initial=np.inf)),
-               -float(relative_clutch_torque(result)[engaged].min(initial=np.inf)))
+    closed = engaged(result)
+    return max(0.0, -float(relative_slip(result)[~closed].min(initial=np.inf)),
+               -float(relative_clutch_torque(result)[closed].min(initial=np.inf)))
 
 
 def margin(result):
