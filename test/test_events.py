@@ -242,6 +242,25 @@ def test_a_short_open_interval_after_a_release_is_seen_in_a_long_look():
     assert count == reference == 14
 
 
+def test_a_catch_in_the_first_step_after_a_massless_nodes_release_is_located():
+    """A machine a wider search found (2026-11-27; another geometry, a massless clutch node on a
+    lightly damped stiff shaft, a speed source), rtol 1e-4: after the release at 39.3 ms the
+    node's twist relaxes within a microsecond, the slip jumps to +0.5 rad/s and falls back
+    through zero at 41.1 ms, all inside the open phase's first 2 ms step. The step's start stood
+    just below the slip's band (the release's torque band over the small damping) and the true
+    guard at a point of the step held the twist still, so the catch was found late: at the
+    step's end, by impact at a slip of -0.06 rad/s."""
+    values = machine(0.00245, 0.028, 0.008, 0.0, 0.08, 15765.0, 0.0099, 5.1, 138.0, **{
+        'linkage.rocker_length': 0.082, 'linkage.coupler_length': 0.25,
+        'linkage.assembly_mode': -1, 'motor.model': 'constant_speed', 'motor.speed': 90.6})
+    _, reference = switch_count(values, 1e-10, 0.045, FINE)
+    _, run = switch_count(values, 1e-4, 0.045, FINE)
+    assert stray(run) == 0.0 and run.diagnostics['possible_missed_events'] == 0
+    assert [s.kind for s in run.switches] == [s.kind for s in reference.switches] == [
+        'engage', 'release', 'engage']
+    assert abs(run.switches[2].t - reference.switches[2].t) < 1e-5
+
+
 @pytest.mark.parametrize('scene', ['paper', 'stiff_shaft'])
 def test_the_output_error_falls_with_the_tolerance(scene):
     values = load_scene(scene)

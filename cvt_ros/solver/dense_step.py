@@ -43,8 +43,12 @@ def take_step(method, kind, t, y, h, mode, P, ACT, K, y_new, ytmp, aux, rtol, at
 
 @inline_kernel
 def guard_at(method, theta, t, h, y0, y1, K, mode, P, ACT, ytmp, dytmp, auxtmp, counters):
-    """The guard at t + θ·h from the dense output and one right-hand side (the twist rule)."""
+    """The guard at t + θ·h from the dense output and one right-hand side (the twist rule).
+    An open massless damped node's twist is its exact relaxation, as the step's end and the
+    samples have it (the step holds it still): the slip just after a release is ω4 − v."""
     dense_state(method, theta, h, y0, y1, K, ytmp)
+    if twist_relaxes(method, mode, P):
+        ytmp[TWIST] = y0[TWIST] * math.exp(-P[P_C] / P[P_KD] * theta * h)
     rhs(t + theta * h, ytmp, mode, P, ACT, dytmp, auxtmp)
     counters[C_RHS] += 1
     g, _ = clutch_guard(mode, ytmp, dytmp, auxtmp, P)

@@ -243,10 +243,11 @@ def split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arme
         sigma = 1.0
         hi = 1.0
         lo = 0.0
-        if not (armed and g0 > 0.0) and g0 >= -gtol and g1 < -gtol:
-            # a look from inside the band (just after a release) to below it: a catch if the
-            # slip left the band upwards first (a short open interval: a heavy load's second
-            # engagement 0.6 ms after its release), located after that; else found late
+        if not (armed and g0 > 0.0) and g1 < -gtol:
+            # a look from inside the band (just after a release; or just under it, as in
+            # guard_watch.watch_step) to below it: a catch if the slip left the band upwards
+            # first (a short open interval: a heavy load's second engagement 0.6 ms after its
+            # release), located after that; else found late
             lo = left_band_upwards(exact, t, h, tau, hs, z, clock, P, Cv, ztmp, g0,
                                    hs * (dw3_0 - dv0), g1, hs * (dw3_1 - dv1), gtol)
             if lo < 0.0:
