@@ -261,6 +261,23 @@ def test_a_catch_in_the_first_step_after_a_massless_nodes_release_is_located():
     assert abs(run.switches[2].t - reference.switches[2].t) < 1e-5
 
 
+def test_a_catch_the_rocker_speeds_interpolant_reaches_late_is_located_on_the_linkage():
+    """A machine the wider strategy found (2026-11-27; a coupler as short as the rocker is long,
+    a quadratic load), rtol 1e-4: over a 7 ms open step the rocker speed's interpolant lags the
+    linkage's u·ω1 by 0.09 rad/s, so an output sub-step ended with the polynomial slip at +0.015
+    rad/s and the true slip at -0.078. The catch was taken at the next sub-step's start, 14 µs
+    late and 0.078 rad/s past it (an engagement 'without impact' that jumped ω3)."""
+    values = machine(0.03917083740234375, math.exp(-3.90625), math.exp(-5.0),
+                     math.exp(-9.203125), 1.0, math.exp(5.375), 0.0, 1.0, 116.0, **{
+                         'linkage.rocker_length': 0.150390625, 'linkage.coupler_length': 0.1,
+                         'linkage.assembly_mode': -1, 'load.quadratic': math.exp(-6.0)})
+    _, reference = switch_count(values, 1e-10, 0.045, FINE)
+    _, run = switch_count(values, 1e-4, 0.045, FINE)
+    assert stray(run) == 0.0
+    assert abs(run.switches[0].t - reference.switches[0].t) < 1e-6
+    assert abs(run.switches[0].value) < 1e-4
+
+
 @pytest.mark.parametrize('scene', ['paper', 'stiff_shaft'])
 def test_the_output_error_falls_with_the_tolerance(scene):
     values = load_scene(scene)
