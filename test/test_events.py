@@ -132,18 +132,34 @@ def machine(crank_length, motor, rocker, clutch_driven, output, stiffness, dampi
         'initial.crank_speed': crank_speed}, **changes)
 
 
-@settings(max_examples=int(os.environ.get('CVT_RANDOM_MACHINES', '40')), deadline=None,
-          print_blob=True, suppress_health_check=[HealthCheck.too_slow])
-@given(values=machines(), variant=st.sampled_from(sorted(VARIANTS)))
-def test_random_machines_switch_the_same_at_every_tolerance(values, variant):
-    """No run's own trajectory crosses its guard unseen (stray), and machines whose clutch
-    never comes within NEAR_MISS of a switch it does not make, in the reference run at rtol
-    1e-10 or in the runs compared with it, switch the same at every tolerance: a nearer miss is
-    decided by the tolerance itself (test_a_near_miss_is_a_matter_of_tolerance,
-    test_a_shallow_contact_is_a_matter_of_tolerance), as is a switch at the very end of the
-    run; on those, rtol 1e-7 holds φ4 within 1e-6 of the reference. Compared: rtol 1e-4 and
-    1e-7 with atol 1e-2·rtol, rtol 1e-4 with the default atol. CVT_RANDOM_MACHINES sets how
-    many."""
+@st.composite
+def machines_of_every_kind(draw):
+    """Machines beyond the shipped geometry: rocker and coupler lengths (crank inside their
+    Grashof bound), either assembly mode, a massless clutch node (on a damped shaft), an
+    induction motor, a constant torque or an ideal speed source, viscous and quadratic load."""
+    rocker, coupler = draw(st.floats(0.05, 0.3)), draw(st.floats(0.1, 0.4))
+    bound = grashof_bound(rocker, coupler, 0.2)
+    assume(bound > 0.01)
+    values = dict(draw(machines()), **{
+        'linkage.rocker_length': rocker, 'linkage.coupler_length': coupler,
+        'linkage.assembly_mode': draw(st.sampled_from([1, -1])),
+        'linkage.crank_length': draw(st.floats(0.05, 0.95)) * bound})
+    if draw(st.booleans()):
+        values['inertia.clutch_driven'] = 0.0
+        values['shaft.damping'] = draw(log_floats(1e-3, 0.5))
+    motor = draw(st.sampled_from(['induction', 'constant_torque', 'constant_speed']))
+    values['motor.model'] = motor
+    if motor == 'constant_torque':
+        values['motor.torque'] = draw(st.floats(2.0, 20.0))
+    elif motor == 'constant_speed':
+        values['motor.speed'] = draw(st.floats(80.0, 157.0))
+    values['load.viscous'] = draw(st.one_of(st.just(0.0), log_floats(1e-3, 0.2)))
+    values['load.quadratic'] = draw(st.one_of(st.just(0.0), log_floats(1e-5, 5e-3)))
+    return values
+
+
+def check_switches_the_same_at_every_tolerance(values, variant):
+    """The random-machine property (test_random_machines_switch_the_same_at_every_tolerance)."""
     values = dict(load_scene('paper'), **values, **VARIANTS[variant])
     reference, reference_run = switch_count(values, 1e-10, 0.3, FINE)
     default_atol = SPECS['solver.atol'].default
@@ -164,6 +180,54 @@ def test_random_machines_switch_the_same_at_every_tolerance(values, variant):
     phi4 = reference_run.samples[-1, COL['phi4']]
     error = abs(runs[1e-7, None][1].samples[-1, COL['phi4']] - phi4) / max(1.0, abs(phi4))
     assert error < 1e-6, error
+
+
+RANDOM_MACHINES = settings(max_examples=int(os.environ.get('CVT_RANDOM_MACHINES', '40')),
+                           deadline=None, print_blob=True,
+                           suppress_health_check=[HealthCheck.too_slow,
+                                                  HealthCheck.filter_too_much])
+
+
+@RANDOM_MACHINES
+@given(values=machines(), variant=st.sampled_from(sorted(VARIANTS)))
+def test_random_machines_switch_the_same_at_every_tolerance(values, variant):
+    """No run's own trajectory crosses its guard unseen (stray), and machines whose clutch
+    never comes within NEAR_MISS of a switch it does not make, in the reference run at rtol
+    1e-10 or in the runs compared with it, switch the same at every tolerance: a nearer miss is
+    decided by the tolerance itself (test_a_near_miss_is_a_matter_of_tolerance,
+    test_a_shallow_contact_is_a_matter_of_tolerance), as is a switch at the very end of the
+    run; on those, rtol 1e-7 holds φ4 within 1e-6 of the reference. Compared: rtol 1e-4 and
+    1e-7 with atol 1e-2·rtol, rtol 1e-4 with the default atol. CVT_RANDOM_MACHINES sets how
+    many."""
+    check_switches_the_same_at_every_tolerance(values, variant)
+
+
+@settings(RANDOM_MACHINES, derandomize='CVT_RANDOM_MACHINES' not in os.environ)
+@given(values=machines_of_every_kind(), variant=st.sampled_from(sorted(VARIANTS)))
+def test_random_machines_of_every_kind_switch_the_same_at_every_tolerance(values, variant):
+    """The same property over other linkages, motors, loads and massless clutch nodes. The
+    same machines on every run of the suite: at rtol 1e-4 about one machine in 2000 of these
+    still has a shallow dip of the true slip that the watch does not see (BENCHMARKS.md, Known
+    defects 15; test_a_shallow_dip_of_the_true_slip_under_the_interpolant_is_missed); a search
+    (CVT_RANDOM_MACHINES=3000) draws new ones."""
+    check_switches_the_same_at_every_tolerance(values, variant)
+
+
+@pytest.mark.xfail(strict=True, reason='Known defects 15 (BENCHMARKS.md): open')
+def test_a_shallow_dip_of_the_true_slip_under_the_interpolant_is_missed():
+    """A machine the wider strategy found (2026-11-27), rtol 1e-4: at 241.0 ms the reference
+    engages for 0.48 ms; the run at rtol 1e-4 stays open while its true slip (the linkage's
+    rocker speed) falls to -0.028 rad/s, 1.4e-3 of the speeds, and back. The rocker speed's
+    interpolant, which the watch reads, stays above zero by about as much: at this tolerance
+    the two differ by ~1e-3 of the speeds inside a step. rtol 1e-5 makes both switches."""
+    values = machine(0.11990146212326204, 0.02, math.exp(-7.59765625), math.exp(-5.765625),
+                     0.8939763782321398, 1205.7568792902334, math.exp(-6.75), 0.0, 100.0, **{
+                         'linkage.rocker_length': 0.1937882683856314,
+                         'linkage.coupler_length': 0.261314594401617,
+                         'linkage.assembly_mode': -1, 'motor.model': 'constant_torque',
+                         'motor.torque': 15.078125})
+    assert switch_count(values, 1e-5, 0.3, FINE)[0] == switch_count(values, 1e-10, 0.3, FINE)[0]
+    assert stray(switch_count(values, 1e-4, 0.3, FINE)[1]) < STRAY
 
 
 def test_a_near_miss_is_a_matter_of_tolerance():
