@@ -67,7 +67,7 @@ from .steppers import (
     dopri5_step,
     initial_step,
 )
-from .witness import N_POLY, hermite_root, poly_value
+from .witness import N_POLY, hermite_minimum, hermite_root, poly_value
 
 # The open output's slip is watched on sub-intervals, in rad of its fastest mode. A look is the
 # Hermite cubic of the slip under its error bound (|a|·|λ|⁴·hs⁴/384 for a mode of amplitude a),
@@ -145,6 +145,25 @@ def _fast_real_modes(t, h, LIN, W, gtol):
                 rate = max(rate, -lam.real)
                 until = max(until, t + math.log(amp / gtol) / -lam.real)
     return rate, until
+
+
+@kernel
+def _true_dip(exact, t, h, y, K, tau, hs, z0, clock, P, ACT, ycomb, ztmp, m, gm, g0, d0, g1, d1,
+              gtol):
+    """σ where the true slip stands below its band in a look whose polynomial slip dips or
+    falls below zero at σ = m (the true slip there gm, not below it), else -1: from m, or, for a
+    fall by the look's end (m = 1), from the polynomial's Hermite cubic's lowest point inside
+    the look, the true slip's own lowest point (slip_look.true_beyond)."""
+    if m == 1.0:
+        m, _ = hermite_minimum(g0, d0, g1, d1)
+        if not m > 0.0:
+            return -1.0
+        gm = true_split_slip(exact, m, t, h, y, K, tau, hs, z0, clock, P, ACT, ycomb, ztmp)
+        if gm < -gtol:
+            return m
+    sm, _ = true_beyond(exact, t, h, y, K, tau, hs, z0, clock, P, ACT, ycomb, ztmp, m, gm, -1.0,
+                        gtol)
+    return sm
 
 
 @kernel
@@ -299,14 +318,17 @@ def split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arme
                                     ztmp)
             gt_lo = true_split_slip(exact, lo, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb,
                                     ztmp)
-            if hi < 1.0 and gt_hi >= 0.0:
-                # a dip of the polynomial slip where the true slip is not below zero: is the
-                # true slip's own dip further on?
-                sm, gm = true_beyond(exact, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb, ztmp,
-                                     hi, gt_hi, -1.0, gtol)
+            if gt_hi >= 0.0 and lo == 0.0:
+                # a dip of the polynomial slip (or its fall through zero by the look's end)
+                # where the true slip is not below zero: is the true slip's own dip nearby?
+                # (rtol 1e-4: the polynomial slip at -0.006 rad/s at the look's end, the true
+                # slip at +0.006 there and down to -0.028 inside it, for 0.5 ms)
+                sm = _true_dip(exact, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb, ztmp, hi,
+                               gt_hi, g0, hs * (dw3_0 - dv0), g1, hs * (dw3_1 - dv1), gtol)
                 if sm >= 0.0:
                     hi = sm
-                    gt_hi = gm
+                    gt_hi = true_split_slip(exact, hi, t, h, y, K, tau, hs, z, clock, P, ACT,
+                                            ycomb, ztmp)
             elif lo > 0.0 and gt_lo <= gtol:
                 # the polynomial slip left the band upwards at lo, the true slip not there:
                 # did it nearby?
