@@ -48,7 +48,7 @@ def guard_at(method, theta, t, h, y0, y1, K, mode, P, ACT, ytmp, dytmp, auxtmp, 
     samples have it (the step holds it still): the slip just after a release is ω4 − v."""
     dense_state(method, theta, h, y0, y1, K, ytmp)
     if twist_relaxes(method, mode, P):
-        ytmp[TWIST] = y0[TWIST] * math.exp(-P[P_C] / P[P_KD] * theta * h)
+        ytmp[TWIST] = relaxed_twist(y0[TWIST], theta * h, P)
     rhs(t + theta * h, ytmp, mode, P, ACT, dytmp, auxtmp)
     counters[C_RHS] += 1
     g, _ = clutch_guard(mode, ytmp, dytmp, auxtmp, P)
@@ -153,6 +153,14 @@ def twist_relaxes(method, mode, P):
             and P[P_RIGID] == 0.0)
 
 
+@inline_kernel
+def relaxed_twist(theta0, dt, P):
+    """The open massless damped node's twist dt after it stood at θ0: θ' = −(c/k)·θ solved
+    exactly, θ0·e^(−(c/k)·dt) (the step holds it still; its end, its samples and the guard
+    inside it read it from here)."""
+    return theta0 * math.exp(-P[P_C] / P[P_KD] * dt)
+
+
 @kernel
 def emit_samples(split, exact, method, t, h, y0, y1, K, tau, hs, z0, clock, mode, P, ACT, grid, out,
                  counters, t_limit, ytmp, ztmp, dytmp, auxtmp):
@@ -166,7 +174,7 @@ def emit_samples(split, exact, method, t, h, y0, y1, K, tau, hs, z0, clock, mode
         else:
             dense_state(method, (grid[i] - t) / h if h > 0.0 else 1.0, h, y0, y1, K, ytmp)
             if twist_relaxes(method, mode, P):
-                theta = y0[TWIST] * math.exp(-P[P_C] / P[P_KD] * (grid[i] - t))
+                theta = relaxed_twist(y0[TWIST], grid[i] - t, P)
                 ytmp[W_DAMPING] += 0.5 * P[P_C] * (y0[TWIST] ** 2 - theta * theta)
                 ytmp[TWIST] = theta
         project(grid[i], ytmp, mode, P, ACT)

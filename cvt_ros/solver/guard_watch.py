@@ -10,14 +10,20 @@ output's slip watch (slip_watch.py) located is settled the same way (creep_onto_
 
 Pieces of the hybrid loop (hybrid.py), which applies the reset map at what these find.
 """
-import math
 
 from ..physics.clutch import TWIST_TOLERANCE, clutch_guard, guard_tolerance
 from ..physics.compiled import inline_kernel, kernel
 from ..physics.dynamics import project, rhs
-from ..physics.layout import AUX_SLIP, AUX_SLIP_RATE, P_C, P_KD, TWIST, W_DAMPING
+from ..physics.layout import AUX_SLIP, AUX_SLIP_RATE, P_C, TWIST, W_DAMPING
 from .advance_layout import C_RHS, CROSSING, FOUND_LATE, NO_EVENT
-from .dense_step import emit_samples, guard_at, locate_root, sample_due, take_step
+from .dense_step import (
+    emit_samples,
+    guard_at,
+    locate_root,
+    relaxed_twist,
+    sample_due,
+    take_step,
+)
 from .steppers import DOPRI5, ERR_FULL, FULL, MASSLESS
 from .witness import (
     N_POLY,
@@ -165,7 +171,7 @@ def relax_twist(t1, h, y, y_new, mode, P, ACT, aux1, dytmp, counters):
     """The open massless damped node over a step: θ = θ0·e^(−(c/k)·h) exactly, the spring's
     energy into the damper; the auxiliaries (the slip) at the step's end refreshed."""
     theta0 = y[TWIST]
-    theta1 = theta0 * math.exp(-P[P_C] / P[P_KD] * h)
+    theta1 = relaxed_twist(theta0, h, P)
     y_new[TWIST] = theta1
     y_new[W_DAMPING] = y[W_DAMPING] + 0.5 * P[P_C] * (theta0 * theta0 - theta1 * theta1)
     project(t1, y_new, mode, P, ACT)

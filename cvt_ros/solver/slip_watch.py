@@ -150,20 +150,21 @@ def _fast_real_modes(t, h, LIN, W, gtol):
 @kernel
 def _true_dip(exact, t, h, y, K, tau, hs, z0, clock, P, ACT, ycomb, ztmp, m, gm, g0, d0, g1, d1,
               gtol):
-    """σ where the true slip stands below its band in a look whose polynomial slip dips or
-    falls below zero at σ = m (the true slip there gm, not below it), else -1: from m, or, for a
-    fall by the look's end (m = 1), from the polynomial's Hermite cubic's lowest point inside
-    the look, the true slip's own lowest point (slip_look.true_beyond)."""
+    """(σ, true slip) where the true slip stands below its band in a look whose polynomial
+    slip dips or falls below zero at σ = m (the true slip there gm, not below it), else
+    (-1, gm): from m, or, for a fall by the look's end (m = 1), from the polynomial's Hermite
+    cubic's lowest point inside the look, the true slip's own lowest point
+    (slip_look.true_beyond)."""
     if m == 1.0:
-        m, _ = hermite_minimum(g0, d0, g1, d1)
-        if not m > 0.0:
-            return -1.0
-        gm = true_split_slip(exact, m, t, h, y, K, tau, hs, z0, clock, P, ACT, ycomb, ztmp)
-        if gm < -gtol:
-            return m
-    sm, _ = true_beyond(exact, t, h, y, K, tau, hs, z0, clock, P, ACT, ycomb, ztmp, m, gm, -1.0,
-                        gtol)
-    return sm
+        xm, _ = hermite_minimum(g0, d0, g1, d1)
+        if not xm > 0.0:
+            return -1.0, gm
+        gx = true_split_slip(exact, xm, t, h, y, K, tau, hs, z0, clock, P, ACT, ycomb, ztmp)
+        if gx < -gtol:
+            return xm, gx
+        m, gm = xm, gx
+    return true_beyond(exact, t, h, y, K, tau, hs, z0, clock, P, ACT, ycomb, ztmp, m, gm, -1.0,
+                       gtol)
 
 
 @kernel
@@ -323,12 +324,12 @@ def split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arme
                 # where the true slip is not below zero: is the true slip's own dip nearby?
                 # (rtol 1e-4: the polynomial slip at -0.006 rad/s at the look's end, the true
                 # slip at +0.006 there and down to -0.028 inside it, for 0.5 ms)
-                sm = _true_dip(exact, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb, ztmp, hi,
-                               gt_hi, g0, hs * (dw3_0 - dv0), g1, hs * (dw3_1 - dv1), gtol)
+                sm, gm = _true_dip(exact, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb, ztmp,
+                                   hi, gt_hi, g0, hs * (dw3_0 - dv0), g1, hs * (dw3_1 - dv1),
+                                   gtol)
                 if sm >= 0.0:
                     hi = sm
-                    gt_hi = true_split_slip(exact, hi, t, h, y, K, tau, hs, z, clock, P, ACT,
-                                            ycomb, ztmp)
+                    gt_hi = gm
             elif lo > 0.0 and gt_lo <= gtol:
                 # the polynomial slip left the band upwards at lo, the true slip not there:
                 # did it nearby?
