@@ -75,14 +75,23 @@ def clutch_guard(mode, y, dy, aux, P):
 
 
 @inline_kernel
+def guard_scale(mode, y, aux, P):
+    """The size of the guard in this machine: the scene's torque scale [N·m] (ENGAGED, torque
+    release) or the member speeds [rad/s] (DISENGAGED)."""
+    if mode == ENGAGED:
+        return P[P_TORQUE_SCALE]
+    w3 = y[OMEGA3] if P[P_RIGID] == 0.0 else y[OMEGA4]
+    return 1.0 + abs(aux[AUX_ROCKER_SPEED]) + abs(w3)
+
+
+@inline_kernel
 def guard_tolerance(mode, y, aux, P):
     """Half-width of the band around g = 0 inside which the guard counts as 'at zero'."""
     if mode == ENGAGED:
         if uses_twist_release(P):
             return TWIST_TOLERANCE
-        return TORQUE_TOLERANCE * P[P_TORQUE_SCALE]
-    w3 = y[OMEGA3] if P[P_RIGID] == 0.0 else y[OMEGA4]
-    return SLIP_TOLERANCE * (1.0 + abs(aux[AUX_ROCKER_SPEED]) + abs(w3))
+        return TORQUE_TOLERANCE * guard_scale(mode, y, aux, P)
+    return SLIP_TOLERANCE * guard_scale(mode, y, aux, P)
 
 
 @kernel
