@@ -260,6 +260,22 @@ def test_a_release_whose_retaken_step_lands_past_the_guard_is_settled_back():
     assert min(release_torques(run)) >= -1e-4 * torque_scale(values)
 
 
+def test_a_catch_before_a_rise_and_a_second_fall_in_one_look_is_found():
+    """Random machine of the shipped-linkage search, S = 12 (2026-11-27): a stiff shaft on a
+    light clutch rings at 6800 rad/s. A 2.6-rad look of the open output's slip (0.39 ms) fell
+    from +0.94 to -0.12 rad/s, but inside it the slip fell through zero, rose to +0.05 and fell
+    again: the root search between the look's ends took the last root, and a 61 µs engagement
+    was lost (374 switches against 376, stray 3.4e-3). A long look that ends at the band is now
+    looked at again in short ones (Known defects 18)."""
+    values = machine(0.07148322151440475, 0.02630842209113133, math.exp(-6.689453125),
+                     1e-4, 0.8539731146763406, math.exp(8.4375), 0.0, 4.125, 151.0)
+    reference = switch_count(values, 1e-10, 0.3, FINE)[0]
+    assert reference == 376
+    for variant, rtol in (('reduced, exact output', 1e-5), ('paper, exact output', 1e-7)):
+        count, run = switch_count(dict(values, **VARIANTS[variant]), rtol, 0.3, FINE)
+        assert (count, stray(run) < STRAY) == (reference, True), variant
+
+
 def release_torques(result):
     """The clutch torque where each release was placed [N·m] (≤ 0: past its guard)."""
     return [s.value for s in result.switches if s.kind == 'release']

@@ -233,12 +233,13 @@ def split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arme
     dv0 = poly_rate(Cv, 0.0, h)
     gtol = SLIP_TOLERANCE * (1.0 + abs(Cv[0]) + abs(z[Z_OMEGA3]))   # the slip's band at tau
     factor = 1.0
+    near = False   # a look ended at the slip's band: the rest of the step in short looks
     while tau < t1:
         if exact:
             hs = h_out
             if tau < fast_until:
                 hs = min(hs, EXACT_PHASE_STEP / fast_rate)
-            if not (armed and g0 > 2.0 * gtol):
+            if near or not (armed and g0 > 2.0 * gtol):
                 hs = min(hs, h_near)
             last = tau + hs >= t1 * (1.0 - 1e-15) or t1 - (tau + hs) < 1e-9 * hs
             if last:
@@ -266,6 +267,13 @@ def split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arme
         dv1 = poly_rate(Cv, x1, h)
         g1 = z_new[Z_OMEGA3] - v1
         gtol = SLIP_TOLERANCE * (1.0 + abs(v1) + abs(z_new[Z_OMEGA3]))
+        if exact and armed and g0 > 0.0 and g1 < min(g0 - g1, lag) and hs > h_near * 1.000001:
+            # a long look whose slip falls to (or within the interpolant's lag of) zero: looked
+            # at again in short ones, for within ARMED_PHASE_STEP rad of the ringing the slip
+            # can fall through zero, rise and fall again, and a search between the look's ends
+            # finds any of the three roots (a catch 61 µs long lost, the later one taken)
+            near = True
+            continue
         sigma = 1.0
         hi = 1.0
         lo = 0.0
