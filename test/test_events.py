@@ -276,6 +276,23 @@ def test_a_catch_before_a_rise_and_a_second_fall_in_one_look_is_found():
         assert (count, stray(run) < STRAY) == (reference, True), variant
 
 
+def test_a_catch_on_a_massless_node_that_lands_past_its_guard_is_settled_back():
+    """Random machine of the every-kind search, S = 12 (2026-11-27): a massless damped clutch
+    node (c/k = 58 000 1/s), paper formulation, rtol 1e-4 with the default atol. A catch 6 ms
+    after a release (the twist long relaxed) was located inside a 2.2 ms step and the step
+    re-taken to it landed at slip -0.035 rad/s (stray 1.4e-3): a massless node's step was
+    never settled. A landing past by more than rtol × the speeds is now moved back on it too
+    (Known defects 19)."""
+    values = machine(0.16919056973556393, 0.02, 0.0032220072081251476, 0.0, 1.0,
+                     4934.4996444174, math.exp(-2.46875), 9.0, 127.38671875, **{
+                         'linkage.rocker_length': 0.24291419624393568,
+                         'linkage.coupler_length': 0.25339458507652435,
+                         'linkage.assembly_mode': -1}, **VARIANTS['paper, exact output'])
+    count, run = switch_count(values, 1e-4, 0.3, FINE, SPECS['solver.atol'].default)
+    assert count == switch_count(values, 1e-10, 0.3, FINE)[0] == 12
+    assert stray(run) < STRAY
+
+
 def release_torques(result):
     """The clutch torque where each release was placed [N·m] (≤ 0: past its guard)."""
     return [s.value for s in result.switches if s.kind == 'release']
