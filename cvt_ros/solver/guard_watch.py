@@ -4,7 +4,8 @@ The witness function of the clutch automaton (physics/clutch.py) is watched alon
 not only at its ends: as a polynomial of the step's dense output (witness.py), so a guard that
 dips through zero and back inside one step is seen. A crossing is located on that polynomial and
 confirmed on the true guard (dense_step.locate_root); a true step is then re-taken exactly to it
-and, where it lands short by the dense output's error, settled onto the guard by Newton steps. A
+and, where it lands short by the dense output's error (or past by more than rtol × the guard's
+scale), settled onto the guard by Newton steps. A
 guard found beyond its band after a step is reported 'late' (FOUND_LATE). A catch that the open
 output's slip watch (slip_watch.py) located is settled the same way (creep_onto_catch).
 

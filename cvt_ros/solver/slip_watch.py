@@ -76,7 +76,8 @@ from .witness import N_POLY, hermite_minimum, hermite_root, poly_value
 # everywhere and 16–24 % less time, the same switches. Near its band (just after a release, or
 # after a crossing of the rocker speed's interpolant alone) a slip is not watched for a crossing,
 # and one that leaves the band downwards within a look is found late, not located: short looks
-# there.
+# there. And where a long look's slip falls to zero: within 3 rad of a ring it can cross zero
+# three times, and only the first is the catch.
 EXACT_PHASE_STEP = 0.75  # [rad] near the band, and while a fast real mode is alive
 ARMED_PHASE_STEP = 3.0   # [rad] while the slip is clearly positive (armed, > 2 bands)
 OUTPUT_RTOL = 1e-7   # loosest tolerance of the open output integrated on its own clock
