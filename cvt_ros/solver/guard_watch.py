@@ -11,6 +11,7 @@ output's slip watch (slip_watch.py) located is settled the same way (creep_onto_
 
 Pieces of the hybrid loop (hybrid.py), which applies the reset map at what these find.
 """
+import math
 
 from ..physics.clutch import TWIST_TOLERANCE, clutch_guard, guard_scale, guard_tolerance
 from ..physics.compiled import inline_kernel, kernel
@@ -288,17 +289,10 @@ def watch_step(method, kind, err_idx, t, h, clipped, t_end, y, y_new, K, mode, P
                         break
                     g_first = g1
                 short = theta
-                rate = guard_rate(G, theta)
-                if it == SETTLE_STEPS or not rate < 0.0:
-                    break
-                theta_next = min(1.0, theta - (g1 - _aim_past(g1, bound)) / rate)
-                if not theta_next > theta:
-                    break
-                theta = theta_next
+                after, before = theta, math.inf    # on
             elif short >= 0.0 and g1 < -g_first:
-                # too far past (the polynomial's rate too flat there; a massless node, whose
-                # relaxation the polynomial does not follow, is never settled): back to the last
-                # short landing, and on from there by a new step
+                # too far past (the polynomial's rate too flat there): back to the last short
+                # landing, and on from there by a new step
                 h_ev = short * h
                 g1 = _retake_to(method, kind, err_idx, t, h_ev, y, y_new, K, mode, P, ACT, aux1,
                                 rtol, atol, ytmp, dytmp, counters)
@@ -306,16 +300,18 @@ def watch_step(method, kind, err_idx, t, h, clipped, t_end, y, y_new, K, mode, P
             elif g1 < -bound:
                 # past by more than the tolerance allows the guard (the dense output's error at
                 # a loose rtol: -0.31 N·m, 14 µs late at rtol 1e-4): back, as a landing short
-                # is moved on
-                rate = guard_rate(G, theta)
-                if it == SETTLE_STEPS or not rate < 0.0:
-                    break
-                theta_next = theta - (g1 - _aim_past(g1, bound)) / rate
-                if not max(0.0, short) < theta_next < theta:
-                    break
-                theta = theta_next
+                # is moved on, but not behind a landing short
+                after, before = max(0.0, short), theta
             else:
                 break
+            # a Newton step on the guard polynomial's rate, aimed just past zero
+            rate = guard_rate(G, theta)
+            if it == SETTLE_STEPS or not rate < 0.0:
+                break
+            theta_next = min(1.0, theta - (g1 - _aim_past(g1, bound)) / rate)
+            if not after < theta_next < before:
+                break
+            theta = theta_next
         if sample_due(grid, counters, t + h_ev):
             emit_samples(False, False, method, t, h_ev, y, y_new, K, t, h_ev, y, clock, mode, P,
                          ACT, grid, out, counters, t + h_ev, ytmp, ytmp, dytmp, auxtmp)

@@ -268,7 +268,10 @@ def split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arme
         dv1 = poly_rate(Cv, x1, h)
         g1 = z_new[Z_OMEGA3] - v1
         gtol = SLIP_TOLERANCE * (1.0 + abs(v1) + abs(z_new[Z_OMEGA3]))
-        if exact and armed and g0 > 0.0 and g1 < min(g0 - g1, lag) and hs > h_near * 1.000001:
+        # the slip falls to within one more such fall of zero and within how far the rocker
+        # speed's interpolant may lag the linkage's
+        falls_near_zero = g1 < g0 - g1 and g1 < lag
+        if exact and armed and g0 > 0.0 and falls_near_zero and hs > h_near * 1.000001:
             # a long look whose slip falls to (or within the interpolant's lag of) zero: looked
             # at again in short ones, for within ARMED_PHASE_STEP rad of the ringing the slip
             # can fall through zero, rise and fall again, and a search between the look's ends
@@ -298,13 +301,11 @@ def split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arme
         elif armed and g0 > 0.0:
             if g1 < 0.0:
                 fire = CROSSING
-            elif g1 < g0 - g1 and g1 < lag and true_split_slip(
+            elif falls_near_zero and true_split_slip(
                     exact, 1.0, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb, ztmp) < -gtol:
-                # the polynomial slip falls to within one more such fall of zero and within
-                # how far the rocker speed's interpolant may lag the linkage's: its end is
-                # read on the linkage too, whose slip may be below zero already (a lag of 0.09
-                # rad/s on a short coupler at rtol 1e-4: the catch was taken a sub-step late,
-                # 0.08 rad/s past it)
+                # the polynomial slip falls near zero: its end is read on the linkage too, whose
+                # slip may be below zero already (a lag of 0.09 rad/s on a short coupler at
+                # rtol 1e-4: the catch was taken a sub-step late, 0.08 rad/s past it)
                 fire = CROSSING
             else:
                 # both ends positive: a dip inside (a short catch)? Hermite cubics of the slip
