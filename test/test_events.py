@@ -13,7 +13,7 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from cvt_ros.bench.scaling import VARIANTS
-from cvt_ros.parameters import SPECS
+from cvt_ros.parameters import SPECS, parameter_vector, validate
 from cvt_ros.physics import layout as L
 from cvt_ros.physics.linkage import grashof_bound
 from cvt_ros.scene import available_scenes, load_scene
@@ -206,7 +206,7 @@ def test_random_machines_switch_the_same_at_every_tolerance(values, variant):
 @given(values=machines_of_every_kind(), variant=st.sampled_from(sorted(VARIANTS)))
 def test_random_machines_of_every_kind_switch_the_same_at_every_tolerance(values, variant):
     """The same property over other linkages, motors, loads and massless clutch nodes
-    (BENCHMARKS.md, Known defects 13-16). The same machines on every run of the suite, as the
+    (BENCHMARKS.md, Known defects 13-19). The same machines on every run of the suite, as the
     newest strategy: a search (CVT_RANDOM_MACHINES=3000) draws new ones."""
     check_switches_the_same_at_every_tolerance(values, variant)
 
@@ -300,7 +300,7 @@ def release_torques(result):
 
 def torque_scale(values):
     """The scene's torque scale [N·m] (the largest of motor and load torques, at least 1)."""
-    return float(Simulator(values).P[L.P_TORQUE_SCALE])
+    return float(parameter_vector(validate(values))[L.P_TORQUE_SCALE])
 
 
 @pytest.mark.parametrize('rtol', [1e-4, SPECS['solver.rtol'].default])
@@ -308,9 +308,8 @@ def torque_scale(values):
 def test_no_release_is_placed_further_past_its_guard_than_the_tolerance(scene, rtol):
     """The clutch carries no negative torque beyond rtol × the scene's torque scale where a
     release is placed (the rigid shaft's landings were 13–34 times that before the settling)."""
-    values = dict(load_scene(scene), **{'solver.rtol': rtol, 'solver.atol': rtol * 1e-2})
-    if values['clutch.release'] == 'twist':
-        pytest.skip('the twist rule releases on the shaft twist, not the clutch torque')
+    values = dict(load_scene(scene), **{'solver.rtol': rtol, 'solver.atol': rtol * 1e-2,
+                                        'clutch.release': 'torque'})
     run = Simulator(values).run(1.0, 0.01)
     assert min(release_torques(run), default=0.0) >= -rtol * torque_scale(values)
 
