@@ -41,27 +41,32 @@ class _StrictLoader(yaml.SafeLoader):
             self._depth -= 1
 
 
-def read_text(path, error=InputFileError):
-    """The text of a small UTF-8 regular file, or ``error`` (a subclass of InputFileError)."""
+def read_text(path, error=InputFileError, limit=MAX_BYTES, kind='a YAML file'):
+    """The text of a UTF-8 regular file of at most ``limit`` bytes, or ``error`` (a subclass of
+    InputFileError, or any exception class taking a message). A FIFO, a device (/dev/zero) or a
+    directory is refused before it is opened: no read that blocks or never ends."""
     path = Path(path)
     try:
         info = path.stat()
         if not stat.S_ISREG(info.st_mode):
-            raise error(f"{path}: not a regular file")
-        if info.st_size > MAX_BYTES:
-            raise error(f"{path}: {info.st_size} bytes, larger than an input file may be "
-                        f"({MAX_BYTES} bytes)")
+            raise error(f"{_shown(path)}: not a regular file")
+        if info.st_size > limit:
+            raise error(f"{_shown(path)}: {info.st_size} bytes, larger than an input file may be "
+                        f"({limit} bytes)")
         with open(path, 'rb') as f:
-            data = f.read(MAX_BYTES + 1)
-    except OSError as exc:
-        raise error(f"{_shown(path)}: cannot read: {exc.strerror or exc}") from None
-    if len(data) > MAX_BYTES:
-        raise error(f"{path}: larger than an input file may be ({MAX_BYTES} bytes)")
+            data = f.read(limit + 1)
+    except (OSError, ValueError) as exc:   # (ValueError: a NUL byte in the name)
+        if isinstance(exc, error):
+            raise
+        raise error(f"{_shown(path)}: cannot read: {getattr(exc, 'strerror', None) or exc}"
+                    ) from None
+    if len(data) > limit:
+        raise error(f"{_shown(path)}: larger than an input file may be ({limit} bytes)")
     try:
         return data.decode('utf-8')
     except UnicodeDecodeError as exc:
-        raise error(f"{path}: not UTF-8 text (byte {exc.start}: {data[exc.start:exc.start + 1]!r}"
-                    f"); is it a YAML file?") from None
+        raise error(f"{_shown(path)}: not UTF-8 text (byte {exc.start}: "
+                    f"{data[exc.start:exc.start + 1]!r}); is it {kind}?") from None
 
 
 def read_yaml(path, error=InputFileError):
