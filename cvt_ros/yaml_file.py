@@ -78,6 +78,24 @@ def read_yaml(path, error=InputFileError):
         raise error(f"{path}: not valid YAML: {' '.join(str(exc).split())}") from None
 
 
+def numbers_in(node, text_keys=()):
+    """``node`` with its number-like texts as floats: YAML 1.1 (PyYAML) reads 1e-3 and 1.0e5 (no
+    sign, or no dot) as text, ROS's parser and a person as numbers. Values under ``text_keys``
+    (names, paths, descriptions) stay as they are."""
+    if isinstance(node, dict):
+        return {k: v if k in text_keys else numbers_in(v, text_keys) for k, v in node.items()}
+    if isinstance(node, list):
+        return [numbers_in(v, text_keys) for v in node]
+    if isinstance(node, str):
+        try:
+            value = float(node)
+        except ValueError:
+            return node
+        if value == value:   # (not 'nan': text stays text)
+            return value
+    return node
+
+
 def parse_value(text):
     """A value given on a command line, read as YAML (``.inf``, ``1e-3``, ``constant_torque``);
     text that is not a YAML scalar or a small collection stays text."""
@@ -101,5 +119,5 @@ def is_file(path):
         return False
 
 
-__all__ = ['InputFileError', 'MAX_BYTES', 'MAX_DEPTH', 'is_file', 'parse_value', 'read_text',
-           'read_yaml']
+__all__ = ['InputFileError', 'MAX_BYTES', 'MAX_DEPTH', 'is_file', 'numbers_in', 'parse_value',
+           'read_text', 'read_yaml']

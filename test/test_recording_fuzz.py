@@ -184,6 +184,49 @@ def test_damaged_recordings_are_replayed_or_refused(worker, original, tmp_path_f
     check(worker, ['replay', path, '--rate', '1000', '--delay', '0'])
 
 
+@pytest.fixture(scope='module')
+def chunked(tmp_path_factory):
+    """1.5 s of the conveyor scene in 8 KiB chunks (~40): (bytes, [(start, end)] of the chunks
+    between the first and the last)."""
+    path = tmp_path_factory.mktemp('fuzz') / 'long.mcap'
+    sim = Simulator(load_scene('conveyor'))
+    with SimulationRecorder(path, parameters=sim.values, scene='conveyor', source='fuzz',
+                            chunk_size=8192, flush_interval=None) as rec:
+        rec.record_clutch_state(sim.engaged, 0.0)
+        rec.record_sample(sim.sample())
+        for _ in range(1500):
+            for sw in sim.advance(1e-3):
+                rec.record_switch(sw)
+            rec.record_sample(sim.sample())
+            rec.record_clock(sim.t)
+    data = path.read_bytes()
+    with open(path, 'rb') as f:
+        chunks = make_reader(f).get_summary().chunk_indexes
+    inner = [(c.chunk_start_offset, c.chunk_start_offset + c.chunk_length) for c in chunks][1:-1]
+    assert len(inner) > 10
+    return data, inner
+
+
+@FUZZ
+@given(data=st.data())
+def test_one_damaged_chunk_leaves_the_rest_analysed(worker, chunked, tmp_path_factory, data):
+    """Issue 34: one flipped bit in one chunk made analyze exit 2 with no result ("the crank
+    turns more than once between two samples" across the skipped chunk). What is intact is
+    analysed; what was skipped, and why, is said; the exit code is 1."""
+    base, chunks = chunked
+    start, end = data.draw(st.sampled_from(chunks))
+    bad = bytearray(base)
+    for _ in range(data.draw(st.integers(1, 3))):   # in the chunk's records, past its header
+        bad[data.draw(st.integers(start + 64, end - 1))] ^= 1 << data.draw(st.integers(0, 7))
+    path = tmp_path_factory.mktemp('chunk') / 'bad.mcap'
+    path.write_bytes(bytes(bad))
+    outcome = check(worker, ['analyze', path, '--cycles', '0'])
+    CASES['one chunk damaged: analyze exit ' + str(outcome.code)] += 1
+    assert outcome.code == 1 and 'run 1:' in outcome.stdout, outcome.stdout + outcome.stderr
+    assert 'skipped' in outcome.stderr and 'the results above cover the readable part' in \
+        outcome.stderr
+
+
 @pytest.mark.parametrize('content', [
     b'', b'\x89MCAP0\r\n', b'\x89MCAP0\r\n' + b'\x01' + b'\xff' * 8, b'\x00' * 4096,
     b'\x89MCAP0\r\n' + bytes(range(256)) * 64, b't,phi1\n' + b'\xff\xfe' * 100,

@@ -21,7 +21,10 @@ def number(value, key, low=-math.inf, high=math.inf, *, unit='', open_low=False,
         raise error(f"{key}: {value!r} is not a finite number")
     if integer and x != int(x):
         raise error(f"{key}: expected a whole number, got {value!r}")
-    if x < low or x > high or (open_low and x <= low):
-        raise error(f"{key}: {x:g}{f' {unit}' if unit else ''} is outside "
-                    f"{'(' if open_low else '['}{low:g}, {high:g}]")
+    whole = integer and isinstance(value, int)   # compared exactly: 2**63 vs 2**63 − 1
+    exact = value if whole else x
+    if exact < low or exact > high or (open_low and exact <= low):
+        shown_value, shown_high = (f"{value}", f"{high}") if whole else (f"{x:g}", f"{high:g}")
+        raise error(f"{key}: {shown_value}{f' {unit}' if unit else ''} is outside "
+                    f"{'(' if open_low else '['}{low:g}, {shown_high}]")
     return int(value) if integer else x

@@ -24,13 +24,15 @@ from pathlib import Path
 from ..control.speed_pi import SpeedPIGains, reference_gains
 from ..physics.linkage import grashof_bound
 from ..scene import SceneError, config_dirs, load_scene, shipped_file
-from ..yaml_file import InputFileError, read_yaml
+from ..yaml_file import InputFileError, numbers_in, read_yaml
 from .checks import number
 from .realism import ActuatorSpec, RealismError, SensorSpec, parse_actuator, parse_sensors
 from .schedule import Schedule, ScheduleError, parse_schedule
 
 KEYS = ('description', 'scene', 'overrides', 'duration', 'control_period', 'seed', 'setpoint',
         'load', 'crank_limits', 'sensors', 'actuator', 'controller')
+#: keys whose values are text, not numbers (a scene named 1e5 stays a name)
+TEXT_KEYS = ('description', 'scene', 'file', 'column', 'time_column')
 MAX_DURATION = 86400.0          # s
 MAX_PERIODS = 5_000_000         # control periods in one run: the run keeps each period's
 #                                 sample (metrics, plot, recording), ~0.4 kB each: ≤ 2 GB
@@ -128,7 +130,7 @@ def load_scenario(path, overrides=None):
         raise ScenarioError(f"{path}: expected a map of scenario keys ({', '.join(KEYS)}), got "
                             f"{type(doc).__name__}")
     overrides = dict(overrides or {})
-    doc = dict(doc, **overrides)
+    doc = numbers_in(dict(doc, **overrides), TEXT_KEYS)   # (1e-3 is a number, as in scene files)
     where = str(path)
     unknown = [k for k in doc if k not in KEYS]
     if unknown:

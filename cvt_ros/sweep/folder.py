@@ -30,12 +30,19 @@ def _digest(path):
 
 
 def _manifest(out):
-    try:
-        data = json.loads((Path(out) / MANIFEST).read_text(encoding='utf-8'))
-        files = data.get('files', {}) if isinstance(data, dict) else {}
-        return {str(k): str(v) for k, v in files.items()} if isinstance(files, dict) else {}
-    except (OSError, ValueError):
+    """The sweep's record of its files: name → sha256 ({} if none); None if OUT/.cvt_sweep.json
+    is there but is not such a record (then it is not the sweep's to replace)."""
+    path = Path(out) / MANIFEST
+    if not os.path.lexists(path):
         return {}
+    try:
+        data = json.loads(path.read_text(encoding='utf-8'))
+    except (OSError, ValueError):
+        return None
+    files = data.get('files') if isinstance(data, dict) else None
+    if not isinstance(files, dict) or set(data) != {'files'}:
+        return None
+    return {str(k): str(v) for k, v in files.items()}
 
 
 def _ours(out, name, manifest, text):
@@ -70,6 +77,9 @@ def check_folder(out, campaign, overwrite=False):
     if overwrite or not out.is_dir():
         return
     manifest = _manifest(out)
+    if manifest is None:
+        raise TableError(f"{out / MANIFEST}: exists and is not the sweep's record of its files: "
+                         f"use another --out, or --overwrite to replace it")
     for name in OWN_FILES:
         if not _ours(out, name, manifest, campaign.text):
             raise TableError(f"{out / name}: exists and is not this sweep's output (the sweep "
@@ -90,7 +100,7 @@ def write_own(out, name, produce):
         if not temp.exists():
             return None
         os.replace(temp, target)
-        manifest = _manifest(out)
+        manifest = _manifest(out) or {}
         manifest[name] = _digest(target)
         record = out / f".{MANIFEST}.tmp-{os.getpid()}"
         record.write_text(json.dumps({'files': manifest}, indent=1, sort_keys=True) + '\n',
