@@ -5,7 +5,17 @@ import collections
 import hashlib
 import os
 
+from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
+
+
+def fuzz_settings(default_examples):
+    """Hypothesis settings of a fuzz module: CVT_FUZZ_EXAMPLES examples (else the default, a
+    count that keeps the module short), the same cases on every run, no example database."""
+    examples = int(os.environ.get('CVT_FUZZ_EXAMPLES', str(default_examples)))
+    return settings(max_examples=examples, deadline=None, derandomize=True, database=None,
+                    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large,
+                                           HealthCheck.function_scoped_fixture])
 
 # values a hostile or careless user types: edges of every range, beyond the float range,
 # denormals, non-numbers, and plain numbers across 600 decades

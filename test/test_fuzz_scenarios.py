@@ -17,18 +17,15 @@ import os
 
 import pytest
 from fuzz_controllers import REAL
-from fuzz_strategies import Tally, flow, leaf, mutate, snapshot, sometimes, touched
+from fuzz_strategies import Tally, flow, fuzz_settings, leaf, mutate, snapshot, sometimes, touched
 from fuzz_worker import Worker, scaled_budget
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 from cvt_ros.scenario.model import available_scenarios, resolve_scenario
 
-EXAMPLES = int(os.environ.get('CVT_FUZZ_EXAMPLES', '20'))
 BUDGET = scaled_budget(60.0)
-FUZZ = settings(max_examples=EXAMPLES, deadline=None, derandomize=True, database=None,
-                suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture,
-                                       HealthCheck.data_too_large])
+FUZZ = fuzz_settings(20)
 FILES = Tally('scenario files')
 CONTROLLERS = Tally('controllers')
 PROFILE = 't,load_torque\n0,8\n0.01,9\n0.02,7.5\n'

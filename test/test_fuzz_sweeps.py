@@ -10,22 +10,18 @@ the sweep's own output (its table, and campaign.yaml / summary.png with --overwr
 example counts keep this module around half a minute; CVT_FUZZ_EXAMPLES raises them, and
 CVT_FUZZ_REPORT collects the counts (BENCHMARKS.md "Bad input").
 """
-import os
 import textwrap
 
 import pytest
-from fuzz_strategies import Tally, flow, leaf, mutate, snapshot, sometimes, touched
+from fuzz_strategies import Tally, flow, fuzz_settings, leaf, mutate, snapshot, sometimes, touched
 from fuzz_worker import Worker, scaled_budget
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 from cvt_ros.sweep.campaign import resolve_campaign
 
-EXAMPLES = int(os.environ.get('CVT_FUZZ_EXAMPLES', '20'))
 BUDGET = scaled_budget(120.0)
-FUZZ = settings(max_examples=EXAMPLES, deadline=None, derandomize=True, database=None,
-                suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture,
-                                       HealthCheck.data_too_large])
+FUZZ = fuzz_settings(20)
 CAMPAIGNS = Tally('campaign files')
 FOLDERS = Tally('sweep output folders')
 SHIPPED = ('conveyor_ratio_map', 'conveyor_pi_gains', 'conveyor_shaft_stiffness')

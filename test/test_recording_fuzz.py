@@ -49,20 +49,27 @@ def original(tmp_path_factory):
     """0.15 s of the paper scene at 1 ms with two commands, in 2 KiB chunks: (bytes, its
     messages as a multiset)."""
     path = tmp_path_factory.mktemp('fuzz') / 'base.mcap'
-    sim = Simulator(load_scene('paper'))
-    with SimulationRecorder(path, parameters=sim.values, scene='paper', source='fuzz',
-                            chunk_size=2048, flush_interval=None) as rec:
+    _record(path, 'paper', 2048, 150, commands=(40, 90))
+    return path.read_bytes(), collections.Counter(_messages(path))
+
+
+def _record(path, scene, chunk_size, periods, commands=()):
+    """``periods`` ms of ``scene`` recorded in chunks of ``chunk_size`` bytes; a crank-length
+    command at each period of ``commands`` (0.035 m at the first, 0.03 m after)."""
+    sim = Simulator(load_scene(scene))
+    with SimulationRecorder(path, parameters=sim.values, scene=scene, source='fuzz',
+                            chunk_size=chunk_size, flush_interval=None) as rec:
         rec.record_clutch_state(sim.engaged, 0.0)
         rec.record_sample(sim.sample())
-        for i in range(150):
-            if i in (40, 90):
-                rec.record_command('crank_length_cmd', 0.03 + 0.005 * (i == 40), sim.t)
-                sim.command_crank_length(0.03 + 0.005 * (i == 40))
+        for i in range(periods):
+            if i in commands:
+                a = 0.03 + 0.005 * (i == commands[0])
+                rec.record_command('crank_length_cmd', a, sim.t)
+                sim.command_crank_length(a)
             for sw in sim.advance(1e-3):
                 rec.record_switch(sw)
             rec.record_sample(sim.sample())
             rec.record_clock(sim.t)
-    return path.read_bytes(), collections.Counter(_messages(path))
 
 
 def _messages(path):
@@ -189,16 +196,7 @@ def chunked(tmp_path_factory):
     """1.5 s of the conveyor scene in 8 KiB chunks (~40): (bytes, [(start, end)] of the chunks
     between the first and the last)."""
     path = tmp_path_factory.mktemp('fuzz') / 'long.mcap'
-    sim = Simulator(load_scene('conveyor'))
-    with SimulationRecorder(path, parameters=sim.values, scene='conveyor', source='fuzz',
-                            chunk_size=8192, flush_interval=None) as rec:
-        rec.record_clutch_state(sim.engaged, 0.0)
-        rec.record_sample(sim.sample())
-        for _ in range(1500):
-            for sw in sim.advance(1e-3):
-                rec.record_switch(sw)
-            rec.record_sample(sim.sample())
-            rec.record_clock(sim.t)
+    _record(path, 'conveyor', 8192, 1500)
     data = path.read_bytes()
     with open(path, 'rb') as f:
         chunks = make_reader(f).get_summary().chunk_indexes
