@@ -21,7 +21,7 @@ def shown(value, limit=60):
     """A value for a message: its repr, cut to ``limit`` characters (a 400-digit literal)."""
     try:
         text = repr(value)
-    except Exception:   # noqa: BLE001 — a user's object whose __repr__ raises
+    except (Exception, SystemExit):   # noqa: BLE001 — a user's object whose __repr__ raises
         text = f"<{type(value).__name__} object>"
     return text if len(text) <= limit else f"{text[:limit]}… ({len(text)} characters)"
 
@@ -36,5 +36,5 @@ def real_number(value):
         return float(value)
     except OverflowError:
         raise NotANumber(f"{shown(value)} is beyond the float range (±1.8e308)") from None
-    except Exception as exc:   # noqa: BLE001 — a numbers.Real whose __float__ raises
+    except (Exception, SystemExit) as exc:   # noqa: BLE001 — a Real whose __float__ raises
         raise NotANumber(f"{shown(value)} cannot be read as a number: {shown(exc)}") from None
