@@ -214,8 +214,10 @@ def test_one_damaged_chunk_leaves_the_rest_analysed(worker, chunked, tmp_path_fa
     base, chunks = chunked
     start, end = data.draw(st.sampled_from(chunks))
     bad = bytearray(base)
-    for _ in range(data.draw(st.integers(1, 3))):   # in the chunk's records, past its header
-        bad[data.draw(st.integers(start + 64, end - 1))] ^= 1 << data.draw(st.integers(0, 7))
+    flips = data.draw(st.lists(st.tuples(st.integers(start + 64, end - 1), st.integers(0, 7)),
+                               min_size=1, max_size=3, unique=True))   # (two alike: no flip)
+    for at, bit in flips:   # in the chunk's records, past its header
+        bad[at] ^= 1 << bit
     path = tmp_path_factory.mktemp('chunk') / 'bad.mcap'
     path.write_bytes(bytes(bad))
     outcome = check(worker, ['analyze', path, '--cycles', '0'])
