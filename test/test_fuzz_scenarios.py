@@ -249,9 +249,9 @@ def _expected(spec):
     if kind == 'numpy' and value not in ('float64', 'float32', 'int64', 'bool_'):
         return {1}   # (np.array(...).astype(an unknown dtype) raises in the controller)
     real = kind in REAL and not (kind == 'numpy' and value == 'bool_')
-    if kind == 'number':
-        real = isinstance(value, (int, float)) and not isinstance(value, bool) and \
-            abs(value) < 1e308 * 1.797 and value == value
+    if kind == 'number':   # (None: keep the last command, as a controller may)
+        real = value is None or (isinstance(value, (int, float)) and not isinstance(value, bool)
+                                 and abs(value) < 1e308 * 1.797 and value == value)
     return {0} if real else {1}
 
 
