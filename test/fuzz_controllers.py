@@ -84,7 +84,3 @@ def make(scenario):
         return answer(spec)
     controller.k = 0
     return controller
-
-
-#: kinds whose answer is a real, finite crank length (the run may complete: exit 0)
-REAL = ('number', 'numpy', 'fraction', 'none')
