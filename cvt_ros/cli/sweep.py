@@ -18,8 +18,8 @@ EPILOG = """\
 examples:
   cvt-sim sweep config/campaigns/conveyor_ratio_map.yaml --out ratio_map/
   cvt-sim sweep config/campaigns/conveyor_pi_gains.yaml --out gains/ --workers 8
-  cvt-sim sweep big.yaml --out big/ --scheduler tls://head-node:8786 --tls-ca ca.pem \
-      --tls-cert me.pem --tls-key me.key --yes
+  cvt-sim sweep big.yaml --out big/ --scheduler tls://head-node:8786 --yes \\
+      --tls-ca ca.pem --tls-cert me.pem --tls-key me-key.pem
   cvt-sim sweep config/campaigns/conveyor_shaft_stiffness.yaml --out x/ --dry-run  # list cases
 
 DIR gets results.parquet (one row per case: parameters, metrics, status, error, wall time),
