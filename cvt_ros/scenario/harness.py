@@ -160,9 +160,9 @@ def _loop(scenario, controller, plant, controller_name, progress):
     error = exception = None
     every = max(1, n // 100)
     skips = getattr(plant, 'skips_periods', False)   # realtime: the newest sample only
-    seen = np.zeros(n + 1, dtype=bool) if skips else None   # (which periods have a sample)
+    sampled = np.zeros(n + 1, dtype=bool) if skips else None   # (periods with a sample)
     if skips:
-        seen[0] = True
+        sampled[0] = True
     k = 0
     try:
         # (locals, not attributes or globals: this loop is a good part of a period's cost)
@@ -215,7 +215,7 @@ def _loop(scenario, controller, plant, controller_name, progress):
             k_next = min(max(k + 1, int(round(row[0] / dt))), n) if skips else k + 1
             rows[k_next] = row
             if skips:
-                seen[k_next] = True
+                sampled[k_next] = True
             if sw:
                 switches.extend(sw)
             if progress is not None and k // every != k_next // every:
@@ -228,7 +228,7 @@ def _loop(scenario, controller, plant, controller_name, progress):
     except KeyboardInterrupt:
         error = f"interrupted at t = {k * dt:.6f} s (period {k})"
     wall = time.perf_counter() - wall0
-    keep = np.flatnonzero(seen[:k + 1]) if skips else np.arange(k + 1)   # (the samples seen)
+    keep = np.flatnonzero(sampled[:k + 1]) if skips else np.arange(k + 1)   # (samples seen)
     samples = rows[:k + 1] if len(keep) == k + 1 else rows[keep]   # (a view: no second copy)
     # the sample times as the stamps carry them (whole ns, as the controller saw them): offline's
     # t is a running sum of periods (12.344999999998597 for 12.345), dds's a stamp, and the
