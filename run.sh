@@ -4,7 +4,7 @@
 # the package installed editable, and the compiled kernels cached. Then it acts:
 #   ./run.sh demo     the demo scene end to end
 #   ./run.sh test     the test suite (what CI runs)
-#   ./run.sh bench    the benchmarks (writes BENCHMARKS.md and plots)
+#   ./run.sh bench    the benchmarks (a new report; --write BENCHMARKS.md updates the published one)
 #   ./run.sh cvt-sim ARGS...   any cvt-sim command inside the environment
 #   ./run.sh ros2 ARGS...      the ROS 2 command line (upstream ros2cli, vendored in third_party/)
 # cvt-sim and ros2 run in the caller's directory (relative paths are the caller's); the set-up,

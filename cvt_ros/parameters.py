@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .numbers import NotANumber, real_number
 from .physics import layout as L
 from .physics.linkage import GrashofError, check_crank_length, grashof_bound
 
@@ -99,18 +100,18 @@ class ParameterSpec:
             raise ParameterError(self.name, f"expected a number [{self.unit}], got "
                                             f"{_short(value)}")
         unit = '' if self.unit == '-' else f" {self.unit}"
+        try:
+            number = real_number(value)
+        except NotANumber:   # an integer literal beyond the float range
+            raise ParameterError(self.name, f"{_short(value)}{unit} is beyond any float; "
+                                            f"accepted: {self.range_text(high)}") from None
         if isinstance(self.default, int):
             if isinstance(value, float) and not value.is_integer():
                 raise ParameterError(self.name, f"expected a whole number, got {value!r}")
-            if not self.contains(value):
+            if not self.contains(number):
                 raise ParameterError(self.name, f"{_short(value)}{unit} is outside "
                                                 f"{self.range_text(high)}")
             return int(value)
-        try:
-            number = float(value)
-        except OverflowError:   # an integer literal beyond the float range
-            raise ParameterError(self.name, f"{_short(value)}{unit} is beyond any float; "
-                                            f"accepted: {self.range_text(high)}") from None
         if math.isnan(number) or (math.isinf(number) and not (self.allow_inf and number > 0)):
             raise ParameterError(self.name, f"{number!r} is not a finite number [{self.unit}]; "
                                             f"accepted: {self.range_text(high)}")
@@ -259,6 +260,7 @@ NODE_PARAMETERS = (
 )
 
 SPECS = {s.name: s for s in PHYSICS_PARAMETERS + NODE_PARAMETERS}
+AVERAGED_MIN_SPEED = 1.0   # rad/s: slowest nominal crank speed of the averaged fidelity's map
 
 
 def register(*specs):
@@ -301,6 +303,12 @@ def validate(values):
     if out['model.formulation'] == 'paper' and out['inertia.rocker'] <= 0.0:
         raise ParameterError('inertia.rocker', 'the paper formulation needs J2 > 0 (it divides by '
                              'the rocker inertia); use model.formulation: reduced')
+    if out['model.fidelity'] == 'averaged' and out['motor.model'] == 'constant_speed' \
+            and not out['motor.speed'] >= AVERAGED_MIN_SPEED:
+        # (its ratio map is made of whole forward crank turns at the nominal speed)
+        raise ParameterError('motor.speed', f"{out['motor.speed']:g} rad/s: the averaged "
+                             f"fidelity needs a crank turning forward at ≥ "
+                             f"{AVERAGED_MIN_SPEED:g} rad/s; use model.fidelity: full")
     return out
 
 

@@ -2,7 +2,7 @@
 
 Layers, lowest first (docs/architecture.md draws them):
 
-    physics < parameters, scene, yaml_file < solver < interface < recording < analysis
+    physics < numbers, parameters, scene, yaml_file < solver < interface < recording < analysis
     < device < control, scenario < testing, sweep < bench, cli
 
 A module may import its own layer and the layers below it, never one above; no two modules
@@ -20,7 +20,7 @@ PACKAGE = Path(__file__).resolve().parent.parent / 'cvt_ros'
 
 LAYERS = [
     ('physics',),
-    ('parameters', 'scene', 'yaml_file'),
+    ('numbers', 'parameters', 'scene', 'yaml_file'),
     ('solver',),
     ('interface',),
     ('recording',),

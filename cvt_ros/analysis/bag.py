@@ -29,6 +29,7 @@ __all__ = ['load_mcap']
 ACTUATOR_JOINT = 'crank_length'
 #: More runs than this (simulation time going back again and again) is no recording of a node.
 MAX_RUNS = 1000
+GAP_FACTOR = 4.0   # a damaged file: a hole of more than this many sample intervals splits a run
 
 
 @dataclass(frozen=True)
@@ -363,7 +364,15 @@ def _split_runs(path: str, samples: _Samples, events: list, parameters: dict | N
         keep[dup] = False
         samples = samples.take(keep)
         stamps = samples.stamps
-    cuts = np.flatnonzero(np.diff(stamps) < 0) + 1
+    steps = np.diff(stamps)
+    cuts = np.flatnonzero(steps < 0) + 1
+    gaps = set()
+    if info.problems and np.any(steps > 0):
+        # a damaged file's skipped chunk leaves a hole in the samples: the crank may turn
+        # several times across it. The intact stretches on either side are analysed apart
+        typical = float(np.median(steps[steps > 0]))
+        gaps = set((np.flatnonzero(steps > GAP_FACTOR * typical) + 1).tolist())
+        cuts = np.union1d(cuts, sorted(gaps)).astype(int)
     bounds = [0, *cuts.tolist(), len(stamps)]
     if len(bounds) - 1 > MAX_RUNS:
         info.problems.append(f'simulation time goes back {len(cuts)} times: not the recording '
@@ -437,6 +446,10 @@ def _split_runs(path: str, samples: _Samples, events: list, parameters: dict | N
             initial = bool(switch_on_arr[head][-1])
             switch_t_arr, switch_on_arr = switch_t_arr[~head], switch_on_arr[~head]
         notes = []
+        if lo in gaps:
+            notes.append(f'samples lost before this part (a damaged chunk of the file was '
+                         f'skipped): none from t = {stamps[lo - 1] * 1e-9:.6f} s to '
+                         f'{t[0]:.6f} s')
         if refused:
             notes.append(f'{refused} command(s) outside the node\'s limits (refused by it) left '
                          f'out')

@@ -97,12 +97,12 @@ def _own(head):
     return head.startswith('## ') and title.startswith(OWN_SECTIONS)
 
 
-def write_report(path, text):
-    """Write our sections first, then every section of the existing file we did not write (the
-    ROS node's, the recording's, …), unchanged and in their order."""
+def write_report(path, text, keep_others=True):
+    """Write our sections first, then (``keep_others``) every section of the existing file we
+    did not write (the ROS node's, the recording's, …), unchanged and in their order."""
     path = Path(path)
     kept = []
-    if path.exists():
+    if keep_others and path.exists():
         kept = [body for head, body in _blocks(path.read_text()) if not _own(head)]
     out = text
     if kept:

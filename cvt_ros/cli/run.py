@@ -168,9 +168,10 @@ def run_command(args):
     load_scene(args.scene, overrides, origins)   # every input error before any work
     pick_fidelity(args, overrides, origins)
     # refuse a target that cannot be written before a long run, not after it
+    from ..recording import OutputFiles
+    from ..scene import resolve
+    targets = OutputFiles(inputs=[str(resolve(args.scene))])
     if args.csv:   # (replaced if it exists, as export's and analyze's outputs are)
-        from ..recording import OutputFiles
-        targets = OutputFiles()
         for path in (args.mcap, args.csv):
             if path:
                 targets.check(path)
@@ -186,17 +187,22 @@ def run_command(args):
         for sink in sinks:
             sink(block)
         writing[0] += time.perf_counter() - t0
-    with contextlib.ExitStack() as stack:
-        if args.csv:
-            csv = stack.enter_context(CsvWriter(args.csv))
-            sinks.append(csv.add)
-        sim = simulator_for(args.scene, overrides, origins)
-        update = None
-        if not args.quiet:   # after the kernels are loaded: the bar's 2 s delay is the run's
-            bar, update = progress_bar(args.duration)
-            stack.callback(bar.close)
-        result = sim.run(args.duration, args.sample_dt, progress=update, on_samples=on_samples,
-                         keep_samples=bool(args.mcap))
+    try:   # the CSV goes to a temporary file renamed at the end: whole, or not at all
+        with targets, contextlib.ExitStack() as stack:
+            if args.csv:
+                csv = stack.enter_context(CsvWriter(targets.temp_path(args.csv)))
+                sinks.append(csv.add)
+            sim = simulator_for(args.scene, overrides, origins)
+            update = None
+            if not args.quiet:   # after the kernels are loaded: the bar's delay is the run's
+                bar, update = progress_bar(args.duration)
+                stack.callback(bar.close)
+            result = sim.run(args.duration, args.sample_dt, progress=update,
+                             on_samples=on_samples, keep_samples=bool(args.mcap))
+    except OSError as exc:   # (disk full, quota, I/O error while the CSV streams)
+        if not args.csv:
+            raise
+        raise targets.error(args.csv, exc) from None
     result.wall_time = max(result.wall_time - writing[0], 0.0)   # the simulation's own time
     summary = summarize(result, args.duration, statistics)
     print(format_summary(summary, args.scene, sim.values['model.fidelity']))

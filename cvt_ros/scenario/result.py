@@ -89,11 +89,12 @@ class ScenarioRun:
         end = float(self.t[-1]) if len(self.t) else 0.0
         evs = [StepEvent(0.0, 'start', float(self.column('omega4')[0]), sc.setpoint.initial)]
         for kind, sched in (('setpoint', sc.setpoint), ('load', sc.load)):
-            level = sched.sample
-            for c in sched.changes:
-                if c.at < end:
-                    evs.append(StepEvent(c.at, kind, float(level(np.array([c.at - 1e-12]))[0]),
-                                         float(level(np.array([c.end]))[0])))
+            changes = [c for c in sched.changes if c.at < end]
+            # (every change's levels in one call each: per change, it was quadratic)
+            before = sched.sample(np.array([c.at - 1e-12 for c in changes]))
+            after = sched.sample(np.array([c.end for c in changes]))
+            evs += [StepEvent(c.at, kind, float(b), float(a))
+                    for c, b, a in zip(changes, before, after, strict=True)]
         return sorted(evs, key=lambda e: (e.t, e.kind != 'setpoint'))
 
     @cached_property
@@ -119,6 +120,14 @@ class ScenarioRun:
         if len(self.t) < 3:
             return dict.fromkeys(METRICS, math.nan)
         return summarize_steps(self.steps, self.trace(), self._grid(), self.setpoint, since=t)
+
+    def missing_metrics(self):
+        """Why a run gave no run-level metric at all ('' when it gave some): an answer of only
+        n/a is no answer, and must not read as one."""
+        if any(v is not None and math.isfinite(v) for v in self.metrics.values()):
+            return ''
+        return (f"no metric could be computed from {len(self.t)} samples "
+                f"({self.duration:g} s simulated)")
 
     # ------------------------------------------------------------------ outputs
     def to_dict(self):
