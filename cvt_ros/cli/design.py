@@ -62,21 +62,22 @@ def _scene_arguments(p):
                         'load torque')
 
 
-def _identify_arguments(p):
+def _identify_arguments(p, sweep=True):
     g = p.add_argument_group('identification (SI units; defaults from the operating point)')
     g.add_argument('--crank-step', type=positive_float, metavar='M',
                    help='crank-length step [m] (default 2 %% of the crank length)')
     g.add_argument('--load-step', type=positive_float, metavar='NM',
                    help='load-torque step [N·m] (default 5 %% of the load, at least 0.2)')
-    g.add_argument('--no-sweep', action='store_true',
-                   help='steps only: no sine sweeps (a third of the time)')
-    g.add_argument('--max-frequency', type=positive_float, metavar='HZ',
-                   help='highest sweep frequency (default 0.2 × the crank frequency; at most '
-                        '0.35 ×: the cycle mean samples once per crank turn)')
-    g.add_argument('--min-frequency', type=positive_float, metavar='HZ',
-                   help='lowest sweep frequency (default a fifth of the FOPDT corner)')
-    g.add_argument('--points', type=_count(2, 200), default=8, metavar='N',
-                   help='sweep frequencies, log-spaced (default 8)')
+    if sweep:
+        g.add_argument('--no-sweep', action='store_true',
+                       help='steps only: no sine sweeps (about half the time)')
+        g.add_argument('--max-frequency', type=positive_float, metavar='HZ',
+                       help='highest sweep frequency (default 0.2 × the crank frequency; at '
+                            'most 0.35 ×: the cycle mean samples once per crank turn)')
+        g.add_argument('--min-frequency', type=positive_float, metavar='HZ',
+                       help='lowest sweep frequency (default a fifth of the FOPDT corner)')
+        g.add_argument('--points', type=_count(2, 200), default=8, metavar='N',
+                       help='sweep frequencies, log-spaced (default 8)')
     g.add_argument('--settle-time', type=positive_seconds(3600.0), default=60.0, metavar='S',
                    help='longest run to the steady state [s] (default 60)')
     g.add_argument('--step-time', type=positive_seconds(3600.0), default=30.0, metavar='S',
@@ -139,7 +140,7 @@ def add_parsers(sub):
     t.add_argument('--json', metavar='OUT', help='write the gains, the model and the check')
     t.add_argument('--overwrite', action='store_true', help='replace existing output files')
     t.add_argument('--quiet', action='store_true', help='no progress lines')
-    _identify_arguments(t)
+    _identify_arguments(t, sweep=False)
     t.set_defaults(func=tune_command)
 
     f = sub.add_parser(
@@ -167,11 +168,13 @@ def _fail(command, message, code=2):
 
 def _settings(args):
     from ..design.identify import IdentifySettings
+    sweep = not getattr(args, 'no_sweep', True)    # (tune: steps only)
     return IdentifySettings(crank_step=args.crank_step, load_step=args.load_step,
                             sample_dt=args.sample_dt, settle_time=args.settle_time,
-                            step_time=args.step_time, sweep=not args.no_sweep,
-                            min_frequency=args.min_frequency, max_frequency=args.max_frequency,
-                            points=args.points)
+                            step_time=args.step_time, sweep=sweep,
+                            min_frequency=getattr(args, 'min_frequency', None),
+                            max_frequency=getattr(args, 'max_frequency', None),
+                            points=getattr(args, 'points', 8))
 
 
 def _say(quiet):

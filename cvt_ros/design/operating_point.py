@@ -110,9 +110,9 @@ def settle(values, settle_time, sample_dt, tolerance, min_cycles):
     if steady is None or not steady.found:
         why = steady.reason if steady is not None else 'no run'
         raise DesignError(f"no steady state within settle_time = {settle_time:g} s ({why}, "
-                          f"band ±{tolerance:.2%} over {min_cycles} crank turns): a longer "
-                          f"settle_time, or a scene that settles (damping, a load that grows "
-                          f"with speed)")
+                          f"relative band ±{tolerance:.2g} over {min_cycles} crank turns): a "
+                          f"longer settle_time, or a scene that settles (damping, a load that "
+                          f"grows with speed)")
     w = record.cycles.window(steady.first, steady.stop)
     if not abs(w['ratio']) >= DRIVEN_RATIO:
         raise DesignError(

@@ -161,7 +161,9 @@ def plot_tuning(check, path):
             label='device (controller kit, cycle means)')
     ax.plot(check.t_model, check.speed_model, color='tab:blue', lw=1.2, ls='--',
             label=f'model + PI (predicted, {check.model})')
-    ax.plot(check.t_model, check.setpoint, color='0.6', lw=0.8, ls=':', label='set point')
+    ax.step(np.concatenate([[check.t_device[0]], check.t_model]),
+            np.concatenate([[check.speed_model[0]], check.setpoint]), where='post',
+            color='0.6', lw=0.8, ls=':', label='set point')
     ax.set_ylabel('output speed ω̄4 [rad/s]')
     ax.legend(fontsize=8)
     ax.grid(True, color='0.9')
@@ -173,7 +175,7 @@ def plot_tuning(check, path):
     ax_u.set_xlabel('time [s]')
     ax_u.grid(True, color='0.9')
     g = check.gains
-    ax.set_title(f"{check.rule}: kp = {g['kp']:.3g} m/(rad/s), ki = {g['ki']:.3g} m/rad — "
+    ax.set_title(f"{check.rule}: kp = {g['kp']:.3g} m/(rad/s), ki = {g['ki']:.3g} m/rad\n"
                  f"settling (2 %) model {_s(check.settling_model)}, device "
                  f"{_s(check.settling_device)}; overshoot model {check.overshoot_model:.1%}, "
                  f"device {check.overshoot_device:.1%}", fontsize=9)
