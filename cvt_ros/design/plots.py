@@ -16,6 +16,7 @@ import numpy as np
 from .fit import simulate
 
 DPI = 110
+ROUGH_FIT = 0.05             # schedule: a point whose FOPDT fit error exceeds this is ringed
 COLOURS = {'fopdt': 'tab:blue', 'second_order': 'tab:orange', 'device': 'black'}
 LABELS = {'crank_length': 'crank length', 'load_torque': 'load torque'}
 
@@ -135,6 +136,9 @@ def plot_schedule(rows, x, y, path):
             colour = cmap(k / max(len(ys) - 1, 1))
             ax.plot([r[x] for r in ok], [r[key] for r in ok], 'o-', ms=3, color=colour,
                     label=f"{y} = {value:g}" if y else None)
+            rough = [r for r in ok if not r['crank_length_fit_error'] <= ROUGH_FIT]
+            ax.plot([r[x] for r in rough], [r[key] for r in rough], 'o', ms=8, mfc='none',
+                    color='red')
             bad = [r for r in sel if r['status'] != 'ok']
             if bad:
                 ax.plot([r[x] for r in bad], [0.0] * len(bad), 'x', color='red', ms=6)
@@ -144,7 +148,8 @@ def plot_schedule(rows, x, y, path):
     if y:
         axes.flat[0].legend(fontsize=7)
     failed = sum(r['status'] != 'ok' for r in rows)
-    fig.suptitle(f"gain schedule: {len(rows)} operating points"
+    fig.suptitle(f"gain schedule: {len(rows)} operating points (red ring: the FOPDT fits the "
+                 f"crank-length steps with more than {ROUGH_FIT:.0%} error)"
                  + (f", {failed} without a model (red ×)" if failed else ''), fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=DPI)
