@@ -247,8 +247,8 @@ def _grid_command(args, overrides, origins):
                           '--plot are for one operating point')
     if not args.out:
         raise DesignError('--grid needs --out DIR (the table and the figure go there)')
-    check_output(args.out, '--out', folder=True)
     axes = parse_grid(args.grid)
+    check_output(args.out, '--out', folder=True)
     from ..sweep.cluster import SweepError
     from ..sweep.table import TableError
     try:

@@ -45,7 +45,7 @@ UNITS = {'crank_length': ('m', 'rad/s per m'), 'load_torque': ('N*m', 'rad/s per
 MODELS = ('fopdt', 'second_order')
 PRE_STEP = 0.2               # s held before a step (its baseline cycles)
 STEP_CHUNK = 1.0             # s run between two looks at a step's settling
-SETTLED_CHANGE = 0.003       # a step has settled when its last STEP_CHUNK moved < 0.3 % of its peak
+SETTLED_CHANGE = 0.003       # settled: the last STEP_CHUNK's mean moved < 0.3 % of the peak
 MIN_SAMPLES_PER_TURN = 8
 
 
@@ -243,20 +243,28 @@ def _step_record(sim0, values, input_name, u0, size, settings):
             return record, t_step
         if held >= settings.step_time - 1e-9:
             raise DesignError(f"the step of {input_name} by {size:+g} has not settled after "
-                              f"step_time = {settings.step_time:g} s (its cycle means still "
-                              f"move by more than {SETTLED_CHANGE:.1%} of the response in the "
-                              f"last {STEP_CHUNK:g} s): a longer step_time, or a smaller step")
+                              f"step_time = {settings.step_time:g} s (the mean of its cycle "
+                              f"means still moves by more than {SETTLED_CHANGE:.1%} of the "
+                              f"response from one {STEP_CHUNK:g} s to the next): a longer "
+                              f"step_time, or a smaller step")
 
 
 def _settled(record, t_step):
+    """The means of the cycle means over the last two STEP_CHUNKs differ by less than
+    SETTLED_CHANGE of the response's peak, for both outputs (means of a second of cycles: a
+    coarse sample interval's scatter of single cycle means averages out)."""
     mid = record.t_mid
     before = mid < t_step
     last = mid >= mid[-1] - STEP_CHUNK
+    previous = (mid >= mid[-1] - 2 * STEP_CHUNK) & ~last & ~before
+    if not np.any(previous) or not np.any(before):
+        return False
     for name in OUTPUT_FIELDS.values():
         y = record.cycles[name]
         base = float(np.mean(y[before]))
         peak = float(np.max(np.abs(y - base)))
-        if np.ptp(y[last]) > SETTLED_CHANGE * peak + 1e-9 * abs(base):
+        drift = abs(float(np.mean(y[last]) - np.mean(y[previous])))
+        if drift > SETTLED_CHANGE * peak + 1e-9 * abs(base):
             return False
     return True
 
