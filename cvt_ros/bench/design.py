@@ -19,7 +19,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from .report import environment, replace_section, table
+from .report import environment, publish, table
 
 TITLE = '## Design tools: identify, gain schedule, FMU'
 ROOT = Path(__file__).resolve().parent.parent.parent
@@ -158,12 +158,8 @@ def main(argv=None):
         log('fmu')
         fmu = _fmu(cfg.steps, folder)
     command = './run.sh bench design' + (' ' + ' '.join(argv) if argv else '')
-    text = section(cfg, env, (ident_sweep, ident_steps, grid, fmu), command, os.getloadavg()[0])
-    print(text)
-    if cfg.out != '-':
-        replace_section(cfg.out, TITLE, text)
-        log(f"wrote the section to {cfg.out}")
-    return 0
+    figures = (ident_sweep, ident_steps, grid, fmu)
+    return publish(section(cfg, env, figures, command, os.getloadavg()[0]), cfg.out, TITLE, log)
 
 
 if __name__ == '__main__':

@@ -132,7 +132,8 @@ def add_parsers(sub):
                    help='closed-loop time constant [s] (default: the plant time constant τ; '
                         'at least the dead time θ, SIMC\'s tight tuning)')
     t.add_argument('--setpoint-step', type=float, metavar='RAD_S',
-                   help='set-point step of the check [rad/s] (default 5 %% of the output speed)')
+                   help='set-point step of the check [rad/s] (default: 2 %% of the output speed '
+                        'or less, so that the P kick stays within a turn of the rate limit)')
     t.add_argument('--duration', type=positive_seconds(3600.0), metavar='S',
                    help='check duration after the step [s] (default 8 τ_c + 4 τ)')
     t.add_argument('--out', metavar='FILE.yaml', help='write the controller: section')
