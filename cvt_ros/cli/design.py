@@ -252,13 +252,17 @@ def _grid_command(args, overrides, origins):
     check_output(args.out, '--out', folder=True)
     from ..sweep.cluster import SweepError
     from ..sweep.table import TableError
+    from .sweep import _Progress
+    progress = _Progress(args.quiet)    # the sweep command's bar: points done, failed, ETA
     try:
         result = run_schedule(args.scene, axes, args.out, overrides, _settings(args),
                               workers=args.workers, scheduler=args.scheduler,
                               time_budget=args.time_budget, say=_say(args.quiet),
-                              origins=origins)
+                              origins=origins, on_event=progress)
     except (SweepError, TableError) as exc:
         raise DesignError(str(exc)) from None
+    finally:
+        progress.close()
     failed = [r for r in result.rows if r['status'] != 'ok']
     print(f"{len(result.rows)} operating points: {len(result.rows) - len(failed)} with a "
           f"model, {len(failed)} without ({result.wall_time:.1f} s)")

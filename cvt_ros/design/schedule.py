@@ -166,10 +166,11 @@ def _tasks(campaign, base, points, settings, budget):
 
 
 def run_schedule(scene, axes, out_dir, overrides=None, settings=None, *, workers=None,
-                 scheduler=None, time_budget=3600.0, say=None, origins=None):
+                 scheduler=None, time_budget=3600.0, say=None, origins=None, on_event=None):
     """Identify ``scene`` at every point of the grid ``axes`` ([(name, values)]) on the sweep
-    engine; a :class:`ScheduleResult`. Raises DesignError (a grid beyond its time budget, a
-    point that cannot be a scene), SweepError, TableError."""
+    engine; a :class:`ScheduleResult`. ``on_event``: the sweep engine's progress events
+    (:func:`cvt_ros.sweep.cluster.run_campaign`). Raises DesignError (a grid beyond its time
+    budget, a point that cannot be a scene), SweepError, TableError."""
     from ..sweep.cluster import open_cluster, plan_campaign, run_campaign
     from .plots import plot_schedule
     say = say or (lambda text: None)
@@ -214,7 +215,7 @@ def run_schedule(scene, axes, out_dir, overrides=None, settings=None, *, workers
                 f"a larger --time-budget")
         say(f"{len(plan.todo)} points on the sweep engine, ~{estimate:.3g} s")
         with open_cluster(scheduler, workers, dashboard=':0') as cluster:
-            run = run_campaign(campaign, out, cluster, plan=plan)
+            run = run_campaign(campaign, out, cluster, plan=plan, on_event=on_event)
     else:
         run = run_campaign(campaign, out, None, plan=plan)
     rows = run.rows
