@@ -6,6 +6,7 @@ published report and docs/plots in place, and nothing else does.
 RK4 stability limit, the long run, the known-defect checks); ``cvt-sim bench node ARGS`` the ROS
 node's benchmark (cvt_ros.bench.node); ``cvt-sim bench fidelity ARGS`` the fidelity table;
 ``cvt-sim bench sweep ARGS`` the Dask campaign benchmark (cvt_ros.bench.sweep); ``cvt-sim bench
+design ARGS`` the design tools (cvt_ros.bench.design); ``cvt-sim bench
 profile ARGS`` where the core's time goes at steady state (Linux perf, cvt_ros.bench.profile).
 """
 import argparse
@@ -53,7 +54,8 @@ from .work_precision import (
 )
 
 SECTIONS = ('work', 'steady', 'scaling', 'events', 'hard', 'stability', 'long', 'defects')
-SUBCOMMANDS = ('node', 'fidelity', 'sweep', 'profile')   # modules with their own main(argv)
+# modules with their own main(argv)
+SUBCOMMANDS = ('node', 'fidelity', 'sweep', 'profile', 'design')
 
 
 def page(cfg, env, parts, plots, command, wall_total):

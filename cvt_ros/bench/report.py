@@ -111,6 +111,16 @@ def write_report(path, text, keep_others=True):
     path.write_text(out if out.endswith('\n') else out + '\n')
 
 
+def publish(text, out, title, log):
+    """Print a benchmark's section and put it into the markdown file ``out`` (None or '-':
+    print only) in place of the section ``title``; the exit code 0."""
+    print(text)
+    if out and out != '-':
+        replace_section(out, title, text)
+        log(f"wrote the section to {out}")
+    return 0
+
+
 def replace_section(path, title, text):
     """Put ``text`` (a section, its ``title`` heading first) into the markdown file ``path`` in
     place of the section of that title, or at its end; every other section is kept as it is."""

@@ -21,7 +21,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from .report import environment, fmt, replace_section, table
+from .report import environment, fmt, publish, table
 
 TITLE = '## Sweeps (Dask campaigns)'
 
@@ -144,11 +144,7 @@ def main(argv=None):
         _, (one_b,) = measure(campaign, 1, 1, folder, log)
     command = './run.sh bench sweep' + (' ' + ' '.join(argv) if argv else '')
     text = section(cfg, env, one_a, two, one_b, rss0, command, os.getloadavg()[0])
-    print(text)
-    if cfg.out and cfg.out != '-':
-        replace_section(cfg.out, TITLE, text)
-        log(f"wrote the section to {cfg.out}")
-    return 0
+    return publish(text, cfg.out, TITLE, log)
 
 
 if __name__ == '__main__':

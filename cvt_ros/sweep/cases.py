@@ -37,6 +37,8 @@ class CaseTask:
 
     ``base`` + ``changes`` are the scene values (validated by build_tasks), or ``scenario`` is
     the case's Scenario (its ``controller_settings``: the case's reference-controller settings).
+    Any other ``kind`` runs ``function(task, deadline)`` → (figures, warnings): a case a room
+    above the sweep defines (a picklable callable: the design tools' operating points).
     """
     index: int
     case_id: str
@@ -52,6 +54,7 @@ class CaseTask:
     metrics: tuple = ()
     time_budget: float = 600.0
     record: str = ''                 # path of the case's recording (.csv / .mcap), '' for none
+    function: object = None          # kind 'call': what runs the case
 
     @property
     def values(self):

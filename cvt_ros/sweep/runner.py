@@ -124,7 +124,7 @@ def run_case(task):
     status, failure, error, warnings = 'ok', '', '', []
     figures = None
     try:
-        runner = _run_scene if task.kind == 'scene' else _run_scenario
+        runner = {'scene': _run_scene, 'scenario': _run_scenario}.get(task.kind, task.function)
         figures, warnings = runner(task, _deadline(task.time_budget, start))
     except CaseTimeout as exc:
         failure, error = 'timeout', str(exc)

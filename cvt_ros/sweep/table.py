@@ -44,7 +44,8 @@ def unit_of(name):
 
 def schema(campaign, variable_types):
     """The table's schema: ``variable_types`` name → 'number' | 'text' of the varied values."""
-    metrics = SCENE_METRICS if campaign.kind == 'scene' else SCENARIO_METRICS
+    metrics = getattr(campaign, 'metric_table', None) or (
+        SCENE_METRICS if campaign.kind == 'scene' else SCENARIO_METRICS)
     fields = [pa.field('case', pa.int64(), metadata={'unit': '-'}),
               pa.field('case_id', pa.string())]
     for name in campaign.variable_names:
