@@ -1,0 +1,317 @@
+"""The hybrid loop of the N-path machine (issue 33): steps, every path's clutch events, the reset
+map over the set of engaged clutches and the samples, in one compiled call (hybrid.py is the
+one-path machine's; this is its generalization for N ≥ 2, and the independent check of it at
+N = 1).
+
+``advance_paths`` integrates from t to t_end. After every accepted step every path's guard is
+watched along the whole step (paths_watch.py); the earliest crossing is reached by a step
+re-taken exactly to it (one that lands short of the guard's band goes on from there, armed),
+and the reset map (physics/path_contacts.py) decides the new engaged set there: a release, a
+catch, a handoff (one path engaging as another releases) or the locked crank, by
+complementarity, with an impact only where a rocker is found faster than the node (a start, a
+parameter change, a catch found late: FOUND_LATE, counted in C_LATE as for one path). The whole
+state is integrated in every set (no split of the open output: with N ≥ 2 some clutch is
+engaged most of the time), by Dormand–Prince under hybrid.py's step-size control or by RK4 on
+the fixed grid with the events located inside its steps on the Hermite continuous extension.
+
+Arrays as hybrid.advance's (advance_layout.py), except: the state has the rocker speeds after
+the one-path slots and P the path count and phase offsets after the one-path parameters
+(physics/paths.py); ms = (engaged set, armed set) as bitmasks (bit k−1 = path k); event rows
+carry the path (paths_layout.E_PATH), one row per clutch that switched (a handoff: two rows at
+the same time).
+"""
+import math
+
+from ..physics.compiled import inline_kernel, kernel
+from ..physics.drives import next_actuator_break
+from ..physics.dynamics import finite_state
+from ..physics.layout import P_C, P_J3, P_KD, P_RIGID, TWIST
+from ..physics.path_contacts import settle_contacts
+from ..physics.paths import N_PATH_AUX, bit, n_paths, paths_project, paths_rhs, set_size
+from .advance_layout import (
+    C_ENGAGED_STEPS,
+    C_EVENTS,
+    C_LATE,
+    C_REJECTED,
+    C_RHS,
+    C_STATUS,
+    C_STEPS,
+    C_SWITCHES,
+    CROSSING,
+    E_KIND,
+    E_LATE,
+    E_MODE,
+    E_T,
+    E_VALUE,
+    FOUND_LATE,
+    H_MAIN,
+    H_RESTART,
+    NO_EVENT,
+    S_ATOL,
+    S_H_FIXED,
+    S_MAX_STEP,
+    S_METHOD,
+    S_RTOL,
+    S_STEP_BUDGET,
+    STATUS_EVENTS_FULL,
+    STATUS_NO_PROGRESS,
+    STATUS_NONFINITE,
+    STATUS_OK,
+    STATUS_STEP_TOO_SMALL,
+    STATUS_ZENO,
+)
+from .dense_step import sample_due
+from .hybrid import (
+    ERR_OLD_START,
+    FILTER_ALPHA,
+    FILTER_BETA,
+    MAX_EVENTS_AT_ONE_TIME,
+    PI_ALPHA,
+    PI_BETA,
+    PI_SAFETY,
+)
+from .paths_layout import E_PATH, MAX_STATE
+from .paths_steps import emit_paths_samples, paths_initial_step, paths_step
+from .paths_watch import first_crossing, path_guard
+from .steppers import DOPRI5, DP_ERROR_EXPONENT, MAX_FACTOR, MIN_FACTOR, SAFETY
+from .witness import N_GUARD, N_POLY
+
+KIND_RELEASE = 0        # physics/clutch.py's KIND_* (the one-path event kinds)
+KIND_ENGAGE = 1
+KIND_ENGAGE_IMPACT = 2
+KIND_GRAZE = 3
+
+
+@inline_kernel
+def _grid_step(t, t_start, h_fixed):
+    """RK4's step to the next point of its grid t_start + k·h_fixed; a remainder below the
+    grid's rounding (or below what moves t at all) belongs to the step after it."""
+    k = math.floor((t - t_start) / h_fixed + 1e-9) + 1.0
+    h = t_start + k * h_fixed - t
+    return h + h_fixed if h < max(1e-9 * h_fixed, 8.0 * 2.2e-16 * abs(t)) else h
+
+
+@inline_kernel
+def _growth(err, err_old, h, h_old, rejected_last):
+    """The next step's factor after an accepted Dormand–Prince step: hybrid.py's controller
+    (Söderlind's H211b filter after a whole accepted step, PI control otherwise, no growth
+    right after a rejection)."""
+    if err == 0.0:
+        grow = MAX_FACTOR
+    elif h_old > 0.0:
+        grow = PI_SAFETY * (max(err, ERR_OLD_START) * err_old) ** -FILTER_BETA * (
+            h / h_old) ** -FILTER_ALPHA
+    else:
+        grow = PI_SAFETY * err ** -PI_ALPHA * err_old ** PI_BETA
+    grow = min(MAX_FACTOR, max(MIN_FACTOR, grow))
+    return min(grow, 1.0) if rejected_last else grow
+
+
+@inline_kernel
+def _guards(mode, aux, P, g):
+    """Every path's guard into g; returns the set of paths whose guard is outside its band."""
+    outside = 0
+    for k in range(n_paths(P)):
+        g[k], band = path_guard(k, mode, aux, P)
+        if abs(g[k]) > band:
+            outside |= bit(k)
+    return outside
+
+
+@kernel
+def _record(events, counters, t, old, new, struck, path, value, late, npaths):
+    """The event rows of a reset: one per clutch that switched (``value``, the guard where the
+    switch was placed, on the row of ``path``), or a graze of ``path`` when none did."""
+    changed = old ^ new
+    e = counters[C_EVENTS]
+    for k in range(npaths):
+        if not (changed & bit(k) or changed == 0 and k == path):
+            continue
+        if changed == 0:
+            kind = KIND_GRAZE
+        elif new & bit(k):
+            kind = KIND_ENGAGE_IMPACT if struck & bit(k) else KIND_ENGAGE
+        else:
+            kind = KIND_RELEASE
+        events[e, E_T] = t
+        events[e, E_MODE] = new
+        events[e, E_KIND] = kind
+        events[e, E_VALUE] = value if k == path else 0.0
+        events[e, E_LATE] = 1.0 if late else 0.0
+        events[e, E_PATH] = k
+        e += 1
+    counters[C_EVENTS] = e
+
+
+@kernel
+def advance_paths(t, t_end, y, ms, P, ACT, S, h_io, grid, out, events, counters, ledger,
+                  scratch):
+    """Integrate the N-path machine from t to t_end [s]; returns the time reached (module
+    text; the arguments as hybrid.advance's without the modal form)."""
+    method = int(S[S_METHOD])
+    rtol = S[S_RTOL]
+    atol = S[S_ATOL]
+    n = y.shape[0]
+    m = MAX_STATE
+    K = scratch[0:7 * n].reshape((7, n))
+    o = 7 * m
+    y_new = scratch[o:o + n]
+    ytmp = scratch[o + m:o + m + n]
+    dytmp = scratch[o + 2 * m:o + 2 * m + n]
+    o += 4 * m
+    aux0 = scratch[o:o + N_PATH_AUX]
+    aux1 = scratch[o + N_PATH_AUX:o + 2 * N_PATH_AUX]
+    auxtmp = scratch[o + 2 * N_PATH_AUX:o + 3 * N_PATH_AUX]
+    o += 3 * N_PATH_AUX
+    C = scratch[o:o + 3 * N_POLY].reshape((3, N_POLY))
+    G = scratch[o + 3 * N_POLY:o + 3 * N_POLY + N_GUARD]
+    o += 3 * N_POLY + N_GUARD
+    npaths = n_paths(P)
+    g0 = scratch[o:o + npaths]
+    g1 = scratch[o + 8:o + 8 + npaths]
+    massless_undamped = P[P_J3] == 0.0 and P[P_KD] == 0.0 and P[P_RIGID] == 0.0
+    mode = ms[0]
+    armed = ms[1]
+    counters[C_STATUS] = STATUS_OK
+
+    paths_rhs(t, y, mode, P, ACT, K[0], aux0)
+    counters[C_RHS] += 1
+    armed |= _guards(mode, aux0, P, g0)
+    h_prop = h_io[H_MAIN]
+    if method == DOPRI5 and h_prop <= 0.0:
+        h_prop = paths_initial_step(t, y, mode, P, ACT, K[0], rtol, atol, ytmp, dytmp, auxtmp)
+        counters[C_RHS] += 1
+    err_old = ERR_OLD_START
+    t_start = t
+    h_fixed = S[S_H_FIXED]
+    t_last_event = -math.inf
+    stalled = 0
+    steps0 = counters[C_STEPS]
+    rejected_last = False
+    restarted = False
+    h_old = -1.0
+
+    while t < t_end:
+        if counters[C_STEPS] - steps0 > S[S_STEP_BUDGET]:
+            counters[C_STATUS] = STATUS_NO_PROGRESS
+            break
+        h = min(h_prop, S[S_MAX_STEP]) if method == DOPRI5 else _grid_step(t, t_start, h_fixed)
+        clipped = False
+        if t + h >= t_end:
+            h = t_end - t
+            clipped = True
+        t_break = next_actuator_break(t, ACT)
+        if t + h > t_break:
+            h = t_break - t
+            clipped = True
+        if h <= 0.0:
+            break
+        err = paths_step(method, t, y, h, mode, P, ACT, K, y_new, ytmp, aux1, rtol, atol,
+                         counters)
+        counters[C_STEPS] += 1
+        counters[C_ENGAGED_STEPS] += 1 if mode != 0 else 0
+        factor = 1.0
+        if method == DOPRI5:
+            if not (err <= 1.0) or not finite_state(y_new):
+                counters[C_REJECTED] += 1
+                shrink = max(MIN_FACTOR, SAFETY * err ** DP_ERROR_EXPONENT) if (
+                    err < math.inf and finite_state(y_new)) else MIN_FACTOR
+                h_prop = h * min(shrink, 1.0)
+                rejected_last = True
+                h_old = -1.0
+                if h_prop < 1e-14 * max(1.0, abs(t)):
+                    counters[C_STATUS] = STATUS_STEP_TOO_SMALL
+                    break
+                continue
+            factor = _growth(err, err_old, h, h_old, rejected_last)
+            h_old = -1.0 if clipped else h
+            if restarted and not clipped:   # the cap of the first step after such a switch
+                h_io[H_RESTART + (1 if mode else 0)] = h * (MAX_FACTOR if err == 0.0 else min(
+                    MAX_FACTOR, max(MIN_FACTOR, SAFETY * err ** DP_ERROR_EXPONENT)))
+            restarted = False
+            err_old = max(err, ERR_OLD_START)
+            rejected_last = False
+        elif not finite_state(y_new):
+            counters[C_STATUS] = STATUS_NONFINITE
+            break
+
+        h_found = h   # the step the event was found in (the restart's scale)
+        theta, path, fire = first_crossing(armed, g0, g1, method, t, h, y, y_new, K, mode, P,
+                                           ACT, aux1, C, G, ytmp, dytmp, auxtmp, counters)
+        if fire == NO_EVENT or fire == FOUND_LATE:
+            t_new = t_end if (clipped and t + h >= t_end) else t + h
+        else:
+            h = theta * h   # a true step re-taken to the located switch
+            paths_step(method, t, y, h, mode, P, ACT, K, y_new, ytmp, aux1, rtol, atol,
+                       counters)
+            t_new = t + h
+        if sample_due(grid, counters, t_new):
+            emit_paths_samples(method, t, h, y, y_new, K, mode, P, ACT, grid, out, counters,
+                               t_new, ytmp, dytmp, auxtmp)
+        t = t_new
+        for i in range(n):
+            y[i] = y_new[i]
+        value, band = path_guard(path, mode, aux1, P) if path >= 0 else (0.0, 0.0)
+        if fire == NO_EVENT or (fire == CROSSING and value > band):
+            # no switch, or the true state has not reached the guard yet: go on from here
+            if fire == NO_EVENT:
+                h_prop = max(h_prop, h * factor) if clipped else h * factor
+            paths_project(t, y, mode, P, ACT, auxtmp)
+            for i in range(n):
+                K[0, i] = K[6, i]
+            armed |= _guards(mode, aux1, P, g0)
+            continue
+
+        # ---- reset map: the new engaged set (physics/path_contacts.py)
+        old = mode
+        exclude = 0
+        paths_project(t, y, old, P, ACT, auxtmp)
+        if old & bit(path):   # a release: the path leaves the set and is not re-decided
+            exclude = bit(path)
+            mode = old & ~exclude
+            if mode == 0 and massless_undamped:
+                # an undamped massless node carries no torque when open, so no twist: what is
+                # left of it (the release's location error) snaps back, its energy lost
+                ledger[0] += 0.5 * P[P_C] * y[TWIST] ** 2
+                y[TWIST] = 0.0
+        mode, struck, loss = settle_contacts(t, y, mode, exclude, fire == FOUND_LATE, P, ACT,
+                                             K[0], aux0, ytmp, dytmp)
+        ledger[0] += loss
+        counters[C_RHS] += 4
+        _record(events, counters, t, old, mode, struck, path, value, fire == FOUND_LATE, npaths)
+        switched = set_size(old ^ mode)
+        counters[C_SWITCHES] += switched
+        if fire == FOUND_LATE and switched:
+            counters[C_LATE] += 1
+        # half-open rule: a guard at zero after the reset is disarmed until it leaves its band
+        armed = _guards(mode, aux0, P, g0)
+        if method == DOPRI5 and switched:
+            # a fresh start in the new set (hybrid.py: its dynamics differ), capped by the first
+            # step accepted after the last switch into an engaged (or open) machine, and by 4×
+            # the step the event was found in (not the step re-taken to it: found just after a
+            # landing short of it, that one is a sliver)
+            h_new = paths_initial_step(t, y, mode, P, ACT, K[0], rtol, atol, ytmp, dytmp,
+                                       auxtmp)
+            counters[C_RHS] += 1
+            h_prop = min(h_new, 4.0 * h_found) if h_new > 0.0 else h_prop
+            cap = h_io[H_RESTART + (1 if mode else 0)]
+            if cap > 0.0:
+                h_prop = min(h_prop, cap)
+            restarted = True
+            err_old = ERR_OLD_START
+            h_old = -1.0
+        if t > t_last_event:
+            t_last_event = t
+            stalled = 0
+        else:
+            stalled += 1
+            if stalled > MAX_EVENTS_AT_ONE_TIME:
+                counters[C_STATUS] = STATUS_ZENO
+                break
+        if counters[C_EVENTS] >= events.shape[0] - npaths:
+            counters[C_STATUS] = STATUS_EVENTS_FULL
+            break
+    ms[0] = mode
+    ms[1] = armed
+    h_io[H_MAIN] = h_prop
+    return t
