@@ -54,6 +54,12 @@ from .paths import (
     torque_band,
 )
 
+# A slip rate this many of its bands from zero is decided by the probe, not by its sign: at a
+# release from the locked crank every other contact is at zero with a rate ∝ the crank's
+# acceleration, which is 0 at the release and, at the located point, the release's location
+# error (~1e-8 rad/s² where the band is 1e-10 of the accelerations): its sign is noise there
+PROBE_BAND = 1e4
+
 # An open slip that would reach zero within this time [s] is at zero with the one located:
 # guards that cross together by structure (a stalled crank: every slip ∝ ω1) are located one
 # of them at a time, the others within the location's error of zero on either side
@@ -157,7 +163,7 @@ def _set_fits(t, y, s, candidates, P, ACT, aux, ytmp, dytmp):
     for k in range(n):
         if candidates & bit(k) and not s & bit(k):
             rate = aux[A_SLIP_RATE + k]
-            band = slip_rate_band(k, aux, dytmp[OMEGA3])
+            band = PROBE_BAND * slip_rate_band(k, aux, dytmp[OMEGA3])
             if rate < -band:
                 return False
             if rate <= band:
