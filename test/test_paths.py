@@ -18,6 +18,7 @@ from test_events import NEAR_MISS, RANDOM_MACHINES, STRAY, machines, margin, str
 from cvt_ros.parameters import ParameterError, phase_offsets, validate
 from cvt_ros.physics import layout as L
 from cvt_ros.scene import available_scenes, load_scene
+from cvt_ros.solver.fidelity import make_simulator
 from cvt_ros.solver.output import COLUMNS, CSV_COLUMNS, csv_columns, path_columns
 from cvt_ros.solver.paths_reference import solve_paths_reference
 from cvt_ros.solver.paths_simulator import PathsSimulator
@@ -39,7 +40,7 @@ LOOSE_ONLY = {('paper', 6): (76, 78), ('grazing', 2): (18, 20), ('stiff_shaft', 
 def run(values, duration=SPAN, sample_dt=0.01, rtol=None, **changes):
     if rtol is not None:
         changes.update({'solver.rtol': rtol, 'solver.atol': 1e-2 * rtol})
-    sim = Simulator(dict(values, **changes))
+    sim = make_simulator(dict(values, **changes))
     return sim, sim.run(duration, sample_dt)
 
 
@@ -74,6 +75,14 @@ def test_bad_path_parameters_are_refused_with_key_value_and_limit(changes, messa
         validate(changes)
 
 
+def test_the_one_path_simulator_refuses_several_paths():
+    with pytest.raises(ParameterError, match='paths.count: 2 paths run on the N-path core: '
+                                             'make the simulator with .*make_simulator'):
+        Simulator({'paths.count': 2})
+    assert type(make_simulator({'paths.count': 2})) is PathsSimulator
+    assert type(make_simulator({'paths.count': 1})) is Simulator
+
+
 def test_phase_offsets_default_to_even_spacing():
     assert phase_offsets(validate({})) == (0.0,)
     assert phase_offsets(validate({'paths.count': 4})) == pytest.approx(
@@ -91,7 +100,7 @@ def test_cvt_sim_params_lists_the_path_parameters(capsys):
 
 def test_a_running_machine_does_not_grow_a_path():
     for n in (1, 2):
-        sim = Simulator({'paths.count': n})
+        sim = make_simulator({'paths.count': n})
         with pytest.raises(ParameterError, match='a running machine does not grow a path'):
             sim.update_parameters({'paths.count': n + 1})
         with pytest.raises(ParameterError, match='re-phase'):
@@ -234,7 +243,7 @@ def test_a_stalled_crank_is_held_by_two_clutches_turning_opposite_ways():
     inertia behind a stiff shaft); at rest two clutches hold it, on rockers turning opposite
     ways (u of opposite signs), the torque split between them, the crank speed exactly zero,
     until one of them lets go and the crank turns again."""
-    sim = Simulator(load_scene('conveyor', {'paths.count': 2}))
+    sim = make_simulator(load_scene('conveyor', {'paths.count': 2}))
     result = sim.run(0.12, 1e-4)
     both = (result.column('engaged_1') == 1.0) & (result.column('engaged_2') == 1.0)
     assert 0.005 < both.mean() < 0.5
@@ -291,7 +300,7 @@ def test_the_device_period_is_the_n_path_simulator_to_the_bit(method):
     switches and the state equal Simulator.advance + sample over commands, events and the
     whole-turn rebase of the angles."""
     values = load_scene('conveyor', {'paths.count': 4, 'solver.method': method})
-    offline, fast = Simulator(values), Simulator(values)
+    offline, fast = make_simulator(values), make_simulator(values)
     stepper = PeriodStepper(fast, 1e-3)
     for k in range(3000):
         if k % 97 == 5:

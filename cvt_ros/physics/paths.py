@@ -27,6 +27,7 @@ polynomial (solver/paths_watch.py), and put back on the closed form after each s
 """
 import math
 
+from . import layout as L
 from .clutch import (
     SLIP_RATE_TOLERANCE,
     SLIP_TOLERANCE,
@@ -34,71 +35,27 @@ from .clutch import (
 )
 from .compiled import inline_kernel, kernel
 from .drives import crank_actuator, load_torque, motor_torque
-from .layout import (
-    AUX_ACTUATOR_POWER,
-    AUX_CLUTCH_TORQUE,
-    AUX_CONSTRAINT,
-    AUX_CRANK_LENGTH,
-    AUX_ENERGY,
-    AUX_FREE_SLIP_RATE,
-    AUX_LOAD_TORQUE,
-    AUX_MOTOR_TORQUE,
-    AUX_ROCKER_ACCEL,
-    AUX_ROCKER_SPEED,
-    AUX_SHAFT_TORQUE,
-    AUX_SLIP,
-    AUX_SLIP_RATE,
-    MOTOR_CONSTANT_SPEED,
-    N_AUX,
-    N_PARAMS,
-    N_STATE,
-    OMEGA1,
-    OMEGA2,
-    OMEGA3,
-    OMEGA4,
-    P_B,
-    P_C,
-    P_D,
-    P_H,
-    P_J1,
-    P_J2,
-    P_J3,
-    P_J4,
-    P_KD,
-    P_MOTOR_MODEL,
-    P_RIGID,
-    P_SIGMA,
-    P_TORQUE_SCALE,
-    PHI1,
-    PHI2,
-    PHI4,
-    TWIST,
-    W_ACTUATOR,
-    W_DAMPING,
-    W_LOAD,
-    W_MOTOR,
-)
 from .linkage import kinematics, rocker_angle, rocker_cos_sin
 
 TWO_PI = 2.0 * math.pi
 MAX_PATHS = 8
 
 # --- parameter vector: the one-path P, then N and the phase offsets -------------------------
-P_PATHS = N_PARAMS            # N
-P_OFFSET = N_PARAMS + 1       # + k: path k+1's phase offset δ [rad] (its crank angle φ1 + δ)
+P_PATHS = L.N_PARAMS            # N
+P_OFFSET = L.N_PARAMS + 1       # + k: path k+1's phase offset δ [rad] (its crank angle φ1 + δ)
 N_PATH_PARAMS = P_OFFSET + MAX_PATHS
 
 # --- state: the one-path slots, then the rocker speeds ---------------------------------------
-V_PATH = N_STATE              # + k: v of path k+1 [rad/s]
+V_PATH = L.N_STATE              # + k: v of path k+1 [rad/s]
 
 
 def n_path_state(n_paths):
-    return N_STATE + n_paths
+    return L.N_STATE + n_paths
 
 
 # --- auxiliaries: the one-path slots (rocker speed and slip: path 1's; clutch torque: the
 # total the clutches pass to the node), then per path (+ k) -----------------------------------
-A_U = N_AUX                       # u_k = ∂φ2,k/∂φ1
+A_U = L.N_AUX                       # u_k = ∂φ2,k/∂φ1
 A_GA = A_U + MAX_PATHS            # g_a,k = ∂φ2,k/∂a [rad/m]
 A_KAPPA = A_GA + MAX_PATHS        # κ_k: v_k' − u_k·ω1' [rad/s²]
 A_SPEED = A_KAPPA + MAX_PATHS     # v_k [rad/s]
@@ -149,10 +106,10 @@ def n_paths(P):
 def paths_linkage(phi1, w1, a, ad, add, P, aux):
     """Each path's u_k, g_a,k, κ_k, v_k into ``aux`` (closed form at φ1 + δ_k, physics.md §2, §5);
     returns (Σu_k², Σu_k·κ_k): the rockers reflected on the crank."""
-    b = P[P_B]
-    d = P[P_D]
-    h = P[P_H]
-    sigma = P[P_SIGMA]
+    b = P[L.P_B]
+    d = P[L.P_D]
+    h = P[L.P_H]
+    sigma = P[L.P_SIGMA]
     su2 = 0.0
     suk = 0.0
     for k in range(n_paths(P)):
@@ -211,19 +168,19 @@ def paths_rhs(t, y, mode, P, ACT, dy, aux):
     (one-path AUX_* slots, then the per-path A_* slots). Returns False (and non-finite rates)
     when the set's equations have no solution (contact_solve)."""
     a, ad, add = crank_actuator(t, ACT)
-    J1 = P[P_J1]
-    J2 = P[P_J2]
-    J3 = P[P_J3]
-    J4 = P[P_J4]
-    c = P[P_C]
-    kd = P[P_KD]
-    rigid = P[P_RIGID] > 0.0
-    speed_source = P[P_MOTOR_MODEL] == MOTOR_CONSTANT_SPEED
+    J1 = P[L.P_J1]
+    J2 = P[L.P_J2]
+    J3 = P[L.P_J3]
+    J4 = P[L.P_J4]
+    c = P[L.P_C]
+    kd = P[L.P_KD]
+    rigid = P[L.P_RIGID] > 0.0
+    speed_source = P[L.P_MOTOR_MODEL] == L.MOTOR_CONSTANT_SPEED
     n = n_paths(P)
-    w1 = y[OMEGA1]
-    theta = y[TWIST]
-    w4 = y[OMEGA4]
-    su2, suk = paths_linkage(y[PHI1], w1, a, ad, add, P, aux)
+    w1 = y[L.OMEGA1]
+    theta = y[L.TWIST]
+    w4 = y[L.OMEGA4]
+    su2, suk = paths_linkage(y[L.PHI1], w1, a, ad, add, P, aux)
     J1e = J1 + J2 * su2
     m1 = 0.0 if speed_source else motor_torque(w1, P)
     F1 = m1 - J2 * suk
@@ -235,7 +192,7 @@ def paths_rhs(t, y, mode, P, ACT, dy, aux):
         Fn = -M4
     else:
         Jn = J3
-        w3 = y[OMEGA3]
+        w3 = y[L.OMEGA3]
         if mode == 0 and J3 == 0.0:
             # open massless node: no torque on it, c·θ + k·(ω3 − ω4) = 0 (θ ≡ 0 undamped)
             w3 = w4 - c * theta / kd if kd > 0.0 else w4
@@ -270,42 +227,42 @@ def paths_rhs(t, y, mode, P, ACT, dy, aux):
     if rigid:
         dw4 = x2
         ts = M4 + J4 * dw4
-        dy[TWIST] = 0.0
+        dy[L.TWIST] = 0.0
         p_damp = 0.0
     else:
         dw4 = (ts - M4) / J4
-        dy[TWIST] = w3 - w4
+        dy[L.TWIST] = w3 - w4
         p_damp = kd * (w3 - w4) * (w3 - w4)
-    dy[PHI1] = w1
-    dy[OMEGA1] = x1
-    dy[PHI2] = aux[A_SPEED]
-    dy[OMEGA2] = aux[A_ACCEL]
-    dy[OMEGA3] = x2
-    dy[PHI4] = w4
-    dy[OMEGA4] = dw4
-    dy[W_MOTOR] = m1 * w1
-    dy[W_LOAD] = M4 * w4
-    dy[W_DAMPING] = p_damp
-    dy[W_ACTUATOR] = p_act
+    dy[L.PHI1] = w1
+    dy[L.OMEGA1] = x1
+    dy[L.PHI2] = aux[A_SPEED]
+    dy[L.OMEGA2] = aux[A_ACCEL]
+    dy[L.OMEGA3] = x2
+    dy[L.PHI4] = w4
+    dy[L.OMEGA4] = dw4
+    dy[L.W_MOTOR] = m1 * w1
+    dy[L.W_LOAD] = M4 * w4
+    dy[L.W_DAMPING] = p_damp
+    dy[L.W_ACTUATOR] = p_act
 
     energy = 0.5 * (J1 * w1 * w1 + J3 * w3 * w3 + J4 * w4 * w4)
     for k in range(n):
         energy += 0.5 * J2 * aux[A_SPEED + k] ** 2
     if not rigid:
         energy += 0.5 * c * theta * theta
-    aux[AUX_ROCKER_SPEED] = aux[A_SPEED]
-    aux[AUX_ROCKER_ACCEL] = aux[A_ACCEL]
-    aux[AUX_CLUTCH_TORQUE] = total
-    aux[AUX_MOTOR_TORQUE] = m1
-    aux[AUX_LOAD_TORQUE] = M4
-    aux[AUX_SHAFT_TORQUE] = ts
-    aux[AUX_SLIP] = aux[A_SLIP]
-    aux[AUX_SLIP_RATE] = aux[A_SLIP_RATE]
-    aux[AUX_CONSTRAINT] = 0.0
-    aux[AUX_CRANK_LENGTH] = a
-    aux[AUX_ACTUATOR_POWER] = p_act
-    aux[AUX_ENERGY] = energy
-    aux[AUX_FREE_SLIP_RATE] = aux[A_SLIP_RATE]
+    aux[L.AUX_ROCKER_SPEED] = aux[A_SPEED]
+    aux[L.AUX_ROCKER_ACCEL] = aux[A_ACCEL]
+    aux[L.AUX_CLUTCH_TORQUE] = total
+    aux[L.AUX_MOTOR_TORQUE] = m1
+    aux[L.AUX_LOAD_TORQUE] = M4
+    aux[L.AUX_SHAFT_TORQUE] = ts
+    aux[L.AUX_SLIP] = aux[A_SLIP]
+    aux[L.AUX_SLIP_RATE] = aux[A_SLIP_RATE]
+    aux[L.AUX_CONSTRAINT] = 0.0
+    aux[L.AUX_CRANK_LENGTH] = a
+    aux[L.AUX_ACTUATOR_POWER] = p_act
+    aux[L.AUX_ENERGY] = energy
+    aux[L.AUX_FREE_SLIP_RATE] = aux[A_SLIP_RATE]
     return ok
 
 
@@ -316,44 +273,45 @@ def paths_project(t, y, mode, P, ACT, aux):
     speed their velocity constraints leave (0 at a constant crank length); the node at the
     engaged rockers' speed; a rigid shaft's or an open massless node's as physics/dynamics.py."""
     a, ad, _ = crank_actuator(t, ACT)
-    rigid = P[P_RIGID] > 0.0
-    if set_size(mode) == 2 and P[P_MOTOR_MODEL] != MOTOR_CONSTANT_SPEED:
-        paths_linkage(y[PHI1], 0.0, a, ad, 0.0, P, aux)
+    rigid = P[L.P_RIGID] > 0.0
+    if set_size(mode) == 2 and P[L.P_MOTOR_MODEL] != L.MOTOR_CONSTANT_SPEED:
+        paths_linkage(y[L.PHI1], 0.0, a, ad, 0.0, P, aux)
         j = first_path(mode)
         k = first_path(mode & ~bit(j))
         du = aux[A_U + j] - aux[A_U + k]
         if du != 0.0:
-            y[OMEGA1] = (aux[A_GA + k] - aux[A_GA + j]) * ad / du
-    paths_linkage(y[PHI1], y[OMEGA1], a, ad, 0.0, P, aux)
+            y[L.OMEGA1] = (aux[A_GA + k] - aux[A_GA + j]) * ad / du
+    paths_linkage(y[L.PHI1], y[L.OMEGA1], a, ad, 0.0, P, aux)
     for k in range(n_paths(P)):
         y[V_PATH + k] = aux[A_SPEED + k]
-    c2, s2, _, _ = rocker_cos_sin(y[PHI1] + P[P_OFFSET], a, P[P_B], P[P_D], P[P_H], P[P_SIGMA])
+    c2, s2, _, _ = rocker_cos_sin(y[L.PHI1] + P[P_OFFSET], a, P[L.P_B], P[L.P_D], P[L.P_H],
+                                  P[L.P_SIGMA])
     phi2 = math.atan2(s2, c2)   # on the branch of the integrated φ2, as physics/dynamics.py
-    y[PHI2] = phi2 + TWO_PI * math.floor((y[PHI2] - phi2) / TWO_PI + 0.5)
-    y[OMEGA2] = aux[A_SPEED]
+    y[L.PHI2] = phi2 + TWO_PI * math.floor((y[L.PHI2] - phi2) / TWO_PI + 0.5)
+    y[L.OMEGA2] = aux[A_SPEED]
     if mode != 0:
-        y[OMEGA3] = aux[A_SPEED + first_path(mode)]
+        y[L.OMEGA3] = aux[A_SPEED + first_path(mode)]
         if rigid:
-            y[OMEGA4] = y[OMEGA3]
+            y[L.OMEGA4] = y[L.OMEGA3]
     elif rigid:
-        y[OMEGA3] = y[OMEGA4]
-    elif P[P_J3] == 0.0:
-        kd = P[P_KD]
-        y[OMEGA3] = y[OMEGA4] - P[P_C] * y[TWIST] / kd if kd > 0.0 else y[OMEGA4]
+        y[L.OMEGA3] = y[L.OMEGA4]
+    elif P[L.P_J3] == 0.0:
+        kd = P[L.P_KD]
+        y[L.OMEGA3] = y[L.OMEGA4] - P[L.P_C] * y[L.TWIST] / kd if kd > 0.0 else y[L.OMEGA4]
     if rigid:
-        y[TWIST] = 0.0
+        y[L.TWIST] = 0.0
 
 
 @kernel
 def path_rocker_angles(y, a, P, out):
     """Each path's rocker angle [rad] into out[k]: the closed form at φ1 + δ_k, on the branch of
     path 1's (the state's φ2, which the projection keeps on its own branch)."""
-    b, d, h, sigma = P[P_B], P[P_D], P[P_H], P[P_SIGMA]
+    b, d, h, sigma = P[L.P_B], P[L.P_D], P[L.P_H], P[L.P_SIGMA]
     turns = 0.0
     for k in range(n_paths(P)):
-        phi2 = rocker_angle(y[PHI1] + P[P_OFFSET + k], a, b, d, h, sigma)
+        phi2 = rocker_angle(y[L.PHI1] + P[P_OFFSET + k], a, b, d, h, sigma)
         if k == 0:
-            turns = TWO_PI * math.floor((y[PHI2] - phi2) / TWO_PI + 0.5)
+            turns = TWO_PI * math.floor((y[L.PHI2] - phi2) / TWO_PI + 0.5)
         out[k] = phi2 + turns
 
 
@@ -367,7 +325,7 @@ def slip_band(k, aux):
 @inline_kernel
 def torque_band(P):
     """Half-width of a clutch torque's band [N·m] (physics/clutch.py's)."""
-    return TORQUE_TOLERANCE * P[P_TORQUE_SCALE]
+    return TORQUE_TOLERANCE * P[L.P_TORQUE_SCALE]
 
 
 @inline_kernel

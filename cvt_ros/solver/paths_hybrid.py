@@ -27,39 +27,8 @@ from ..physics.drives import next_actuator_break
 from ..physics.dynamics import finite_state
 from ..physics.layout import P_C, P_J3, P_KD, P_RIGID, TWIST
 from ..physics.path_contacts import settle_contacts
-from ..physics.paths import N_PATH_AUX, bit, n_paths, paths_project, paths_rhs, set_size
-from .advance_layout import (
-    C_ENGAGED_STEPS,
-    C_EVENTS,
-    C_LATE,
-    C_REJECTED,
-    C_RHS,
-    C_STATUS,
-    C_STEPS,
-    C_SWITCHES,
-    CROSSING,
-    E_KIND,
-    E_LATE,
-    E_MODE,
-    E_T,
-    E_VALUE,
-    FOUND_LATE,
-    H_MAIN,
-    H_RESTART,
-    NO_EVENT,
-    S_ATOL,
-    S_H_FIXED,
-    S_MAX_STEP,
-    S_METHOD,
-    S_RTOL,
-    S_STEP_BUDGET,
-    STATUS_EVENTS_FULL,
-    STATUS_NO_PROGRESS,
-    STATUS_NONFINITE,
-    STATUS_OK,
-    STATUS_STEP_TOO_SMALL,
-    STATUS_ZENO,
-)
+from ..physics.paths import MAX_PATHS, N_PATH_AUX, bit, n_paths, paths_project, paths_rhs, set_size
+from . import advance_layout as AL
 from .dense_step import sample_due
 from .hybrid import (
     ERR_OLD_START,
@@ -108,6 +77,14 @@ def _growth(err, err_old, h, h_old, rejected_last):
 
 
 @inline_kernel
+def _resized(err):
+    """The step factor Dormand–Prince's error asks for (steppers.py's limits)."""
+    if err == 0.0:
+        return MAX_FACTOR
+    return min(MAX_FACTOR, max(MIN_FACTOR, SAFETY * err ** DP_ERROR_EXPONENT))
+
+
+@inline_kernel
 def _guards(mode, aux, P, g):
     """Every path's guard into g; returns the set of paths whose guard is outside its band."""
     outside = 0
@@ -123,7 +100,7 @@ def _record(events, counters, t, old, new, struck, path, value, late, npaths):
     """The event rows of a reset: one per clutch that switched (``value``, the guard where the
     switch was placed, on the row of ``path``), or a graze of ``path`` when none did."""
     changed = old ^ new
-    e = counters[C_EVENTS]
+    e = counters[AL.C_EVENTS]
     for k in range(npaths):
         if not (changed & bit(k) or changed == 0 and k == path):
             continue
@@ -133,14 +110,14 @@ def _record(events, counters, t, old, new, struck, path, value, late, npaths):
             kind = KIND_ENGAGE_IMPACT if struck & bit(k) else KIND_ENGAGE
         else:
             kind = KIND_RELEASE
-        events[e, E_T] = t
-        events[e, E_MODE] = new
-        events[e, E_KIND] = kind
-        events[e, E_VALUE] = value if k == path else 0.0
-        events[e, E_LATE] = 1.0 if late else 0.0
+        events[e, AL.E_T] = t
+        events[e, AL.E_MODE] = new
+        events[e, AL.E_KIND] = kind
+        events[e, AL.E_VALUE] = value if k == path else 0.0
+        events[e, AL.E_LATE] = 1.0 if late else 0.0
         events[e, E_PATH] = k
         e += 1
-    counters[C_EVENTS] = e
+    counters[AL.C_EVENTS] = e
 
 
 @kernel
@@ -148,97 +125,88 @@ def advance_paths(t, t_end, y, ms, P, ACT, S, h_io, grid, out, events, counters,
                   scratch):
     """Integrate the N-path machine from t to t_end [s]; returns the time reached (module
     text; the arguments as hybrid.advance's without the modal form)."""
-    method = int(S[S_METHOD])
-    rtol = S[S_RTOL]
-    atol = S[S_ATOL]
+    method = int(S[AL.S_METHOD])
+    rtol = S[AL.S_RTOL]
+    atol = S[AL.S_ATOL]
+    # the working arrays, carved out of scratch as paths_layout.N_PATH_SCRATCH counts them
     n = y.shape[0]
     m = MAX_STATE
     K = scratch[0:7 * n].reshape((7, n))
-    o = 7 * m
-    y_new = scratch[o:o + n]
-    ytmp = scratch[o + m:o + m + n]
-    dytmp = scratch[o + 2 * m:o + 2 * m + n]
-    o += 4 * m
-    aux0 = scratch[o:o + N_PATH_AUX]
-    aux1 = scratch[o + N_PATH_AUX:o + 2 * N_PATH_AUX]
-    auxtmp = scratch[o + 2 * N_PATH_AUX:o + 3 * N_PATH_AUX]
-    o += 3 * N_PATH_AUX
-    C = scratch[o:o + 3 * N_POLY].reshape((3, N_POLY))
-    G = scratch[o + 3 * N_POLY:o + 3 * N_POLY + N_GUARD]
-    o += 3 * N_POLY + N_GUARD
+    states = scratch[7 * m:11 * m].reshape((4, m))
+    y_new, ytmp, dytmp = states[0, :n], states[1, :n], states[2, :n]
+    auxes = scratch[11 * m:11 * m + 3 * N_PATH_AUX].reshape((3, N_PATH_AUX))
+    aux0, aux1, auxtmp = auxes[0], auxes[1], auxes[2]
+    rest = scratch[11 * m + 3 * N_PATH_AUX:]
+    C = rest[:3 * N_POLY].reshape((3, N_POLY))
+    G = rest[3 * N_POLY:3 * N_POLY + N_GUARD]
     npaths = n_paths(P)
-    g0 = scratch[o:o + npaths]
-    g1 = scratch[o + 8:o + 8 + npaths]
+    guards = rest[3 * N_POLY + N_GUARD:3 * N_POLY + N_GUARD + 2 * MAX_PATHS]
+    g0, g1 = guards[:npaths], guards[MAX_PATHS:MAX_PATHS + npaths]
     massless_undamped = P[P_J3] == 0.0 and P[P_KD] == 0.0 and P[P_RIGID] == 0.0
     mode = ms[0]
     armed = ms[1]
-    counters[C_STATUS] = STATUS_OK
+    counters[AL.C_STATUS] = AL.STATUS_OK
 
     paths_rhs(t, y, mode, P, ACT, K[0], aux0)
-    counters[C_RHS] += 1
+    counters[AL.C_RHS] += 1
     armed |= _guards(mode, aux0, P, g0)
-    h_prop = h_io[H_MAIN]
+    h_prop = h_io[AL.H_MAIN]
     if method == DOPRI5 and h_prop <= 0.0:
         h_prop = paths_initial_step(t, y, mode, P, ACT, K[0], rtol, atol, ytmp, dytmp, auxtmp)
-        counters[C_RHS] += 1
+        counters[AL.C_RHS] += 1
     err_old = ERR_OLD_START
     t_start = t
-    h_fixed = S[S_H_FIXED]
+    h_fixed = S[AL.S_H_FIXED]
     t_last_event = -math.inf
     stalled = 0
-    steps0 = counters[C_STEPS]
+    steps0 = counters[AL.C_STEPS]
     rejected_last = False
     restarted = False
     h_old = -1.0
 
     while t < t_end:
-        if counters[C_STEPS] - steps0 > S[S_STEP_BUDGET]:
-            counters[C_STATUS] = STATUS_NO_PROGRESS
+        if counters[AL.C_STEPS] - steps0 > S[AL.S_STEP_BUDGET]:
+            counters[AL.C_STATUS] = AL.STATUS_NO_PROGRESS
             break
-        h = min(h_prop, S[S_MAX_STEP]) if method == DOPRI5 else _grid_step(t, t_start, h_fixed)
-        clipped = False
-        if t + h >= t_end:
-            h = t_end - t
-            clipped = True
-        t_break = next_actuator_break(t, ACT)
-        if t + h > t_break:
-            h = t_break - t
-            clipped = True
+        h = min(h_prop, S[AL.S_MAX_STEP]) if method == DOPRI5 else _grid_step(t, t_start, h_fixed)
+        # cut at t_end and at the actuator's next break (where a'' jumps)
+        end = min(t_end, next_actuator_break(t, ACT))
+        clipped = t + h >= end
+        if clipped:
+            h = end - t
         if h <= 0.0:
             break
         err = paths_step(method, t, y, h, mode, P, ACT, K, y_new, ytmp, aux1, rtol, atol,
                          counters)
-        counters[C_STEPS] += 1
-        counters[C_ENGAGED_STEPS] += 1 if mode != 0 else 0
+        counters[AL.C_STEPS] += 1
+        counters[AL.C_ENGAGED_STEPS] += 1 if mode != 0 else 0
         factor = 1.0
         if method == DOPRI5:
-            if not (err <= 1.0) or not finite_state(y_new):
-                counters[C_REJECTED] += 1
-                shrink = max(MIN_FACTOR, SAFETY * err ** DP_ERROR_EXPONENT) if (
-                    err < math.inf and finite_state(y_new)) else MIN_FACTOR
-                h_prop = h * min(shrink, 1.0)
+            finite = finite_state(y_new)
+            if not (err <= 1.0 and finite):   # rejected: smaller, never larger, or give up
+                counters[AL.C_REJECTED] += 1
+                h_prop = h * min(_resized(err) if finite else MIN_FACTOR, 1.0)
                 rejected_last = True
                 h_old = -1.0
                 if h_prop < 1e-14 * max(1.0, abs(t)):
-                    counters[C_STATUS] = STATUS_STEP_TOO_SMALL
+                    counters[AL.C_STATUS] = AL.STATUS_STEP_TOO_SMALL
                     break
                 continue
             factor = _growth(err, err_old, h, h_old, rejected_last)
             h_old = -1.0 if clipped else h
             if restarted and not clipped:   # the cap of the first step after such a switch
-                h_io[H_RESTART + (1 if mode else 0)] = h * (MAX_FACTOR if err == 0.0 else min(
-                    MAX_FACTOR, max(MIN_FACTOR, SAFETY * err ** DP_ERROR_EXPONENT)))
+                h_io[AL.H_RESTART + (1 if mode else 0)] = h * _resized(err)
             restarted = False
             err_old = max(err, ERR_OLD_START)
             rejected_last = False
         elif not finite_state(y_new):
-            counters[C_STATUS] = STATUS_NONFINITE
+            counters[AL.C_STATUS] = AL.STATUS_NONFINITE
             break
 
         h_found = h   # the step the event was found in (the restart's scale)
         theta, path, fire = first_crossing(armed, g0, g1, method, t, h, y, y_new, K, mode, P,
                                            ACT, aux1, C, G, ytmp, dytmp, auxtmp, counters)
-        if fire == NO_EVENT or fire == FOUND_LATE:
+        if fire == AL.NO_EVENT or fire == AL.FOUND_LATE:
             t_new = t_end if (clipped and t + h >= t_end) else t + h
         else:
             h = theta * h   # a true step re-taken to the located switch
@@ -252,9 +220,9 @@ def advance_paths(t, t_end, y, ms, P, ACT, S, h_io, grid, out, events, counters,
         for i in range(n):
             y[i] = y_new[i]
         value, band = path_guard(path, mode, aux1, P) if path >= 0 else (0.0, 0.0)
-        if fire == NO_EVENT or (fire == CROSSING and value > band):
+        if fire == AL.NO_EVENT or (fire == AL.CROSSING and value > band):
             # no switch, or the true state has not reached the guard yet: go on from here
-            if fire == NO_EVENT:
+            if fire == AL.NO_EVENT:
                 h_prop = max(h_prop, h * factor) if clipped else h * factor
             paths_project(t, y, mode, P, ACT, auxtmp)
             for i in range(n):
@@ -274,15 +242,15 @@ def advance_paths(t, t_end, y, ms, P, ACT, S, h_io, grid, out, events, counters,
                 # left of it (the release's location error) snaps back, its energy lost
                 ledger[0] += 0.5 * P[P_C] * y[TWIST] ** 2
                 y[TWIST] = 0.0
-        mode, struck, loss = settle_contacts(t, y, mode, exclude, fire == FOUND_LATE, P, ACT,
+        mode, struck, loss = settle_contacts(t, y, mode, exclude, fire == AL.FOUND_LATE, P, ACT,
                                              K[0], aux0, ytmp, dytmp)
         ledger[0] += loss
-        counters[C_RHS] += 4
-        _record(events, counters, t, old, mode, struck, path, value, fire == FOUND_LATE, npaths)
+        counters[AL.C_RHS] += 4
+        _record(events, counters, t, old, mode, struck, path, value, fire == AL.FOUND_LATE, npaths)
         switched = set_size(old ^ mode)
-        counters[C_SWITCHES] += switched
-        if fire == FOUND_LATE and switched:
-            counters[C_LATE] += 1
+        counters[AL.C_SWITCHES] += switched
+        if fire == AL.FOUND_LATE and switched:
+            counters[AL.C_LATE] += 1
         # half-open rule: a guard at zero after the reset is disarmed until it leaves its band
         armed = _guards(mode, aux0, P, g0)
         if method == DOPRI5 and switched:
@@ -292,26 +260,22 @@ def advance_paths(t, t_end, y, ms, P, ACT, S, h_io, grid, out, events, counters,
             # landing short of it, that one is a sliver)
             h_new = paths_initial_step(t, y, mode, P, ACT, K[0], rtol, atol, ytmp, dytmp,
                                        auxtmp)
-            counters[C_RHS] += 1
+            counters[AL.C_RHS] += 1
             h_prop = min(h_new, 4.0 * h_found) if h_new > 0.0 else h_prop
-            cap = h_io[H_RESTART + (1 if mode else 0)]
+            cap = h_io[AL.H_RESTART + (1 if mode else 0)]
             if cap > 0.0:
                 h_prop = min(h_prop, cap)
             restarted = True
             err_old = ERR_OLD_START
             h_old = -1.0
-        if t > t_last_event:
-            t_last_event = t
-            stalled = 0
-        else:
-            stalled += 1
-            if stalled > MAX_EVENTS_AT_ONE_TIME:
-                counters[C_STATUS] = STATUS_ZENO
-                break
-        if counters[C_EVENTS] >= events.shape[0] - npaths:
-            counters[C_STATUS] = STATUS_EVENTS_FULL
+        # resets without the time moving on (the automaton would loop), or a full event table
+        stalled = stalled + 1 if t <= t_last_event else 0
+        t_last_event = max(t, t_last_event)
+        if stalled > MAX_EVENTS_AT_ONE_TIME or counters[AL.C_EVENTS] >= events.shape[0] - npaths:
+            counters[AL.C_STATUS] = (AL.STATUS_ZENO if stalled > MAX_EVENTS_AT_ONE_TIME
+                                     else AL.STATUS_EVENTS_FULL)
             break
     ms[0] = mode
     ms[1] = armed
-    h_io[H_MAIN] = h_prop
+    h_io[AL.H_MAIN] = h_prop
     return t

@@ -1,6 +1,7 @@
-"""The N-path machine behind the Simulator's interface (issue 33): ``Simulator(values)`` with
-``paths.count`` ≥ 2 is a PathsSimulator, the same methods (run, advance, sample, commands,
-update_parameters, energy_balance) over the N-path core (paths_hybrid.py).
+"""The N-path machine behind the Simulator's interface (issue 33): a scene with ``paths.count``
+≥ 2 runs on a PathsSimulator (``fidelity.make_simulator`` makes it), the same methods (run,
+advance, sample, commands, update_parameters, energy_balance) over the N-path core
+(paths_hybrid.py).
 
 What it adds: the sample rows carry per-path columns (output.path_columns: phi2_k, omega2_k,
 engaged_k, clutch_torque_k), each ClutchSwitch names its path, ``path_switch_counts`` counts
@@ -20,23 +21,9 @@ from ..physics.linkage import rocker_angle
 from ..physics.path_contacts import settle_contacts
 from ..physics.paths import N_PATH_AUX, N_PATH_PARAMS, P_OFFSET, P_PATHS, paths_project, paths_rhs
 from . import advance_layout as AL
+from . import paths_layout as PL
 from .output import COL, path_columns
 from .paths_hybrid import advance_paths
-from .paths_layout import (
-    E_PATH,
-    N_PATH_EVENT_COLUMNS,
-    PF_ACT,
-    PF_AUX,
-    PF_DY,
-    PF_H,
-    PF_LEDGER,
-    PF_P,
-    PF_ROW,
-    PF_S,
-    PF_SCRATCH,
-    PF_SIZE,
-    PF_Y,
-)
 from .paths_steps import write_paths_sample
 from .simulator import _KIND_NAMES, I_COUNTERS, I_MS, I_SIZE, ClutchSwitch, Simulator
 
@@ -49,8 +36,8 @@ class PathsSimulator(Simulator):
         self.values = params_mod.validate(values or {})
         self.n_paths = self.values['paths.count']
         self.columns = path_columns(self.n_paths, per_path=True)
-        self._events_buf = np.zeros((events_capacity, N_PATH_EVENT_COLUMNS))
-        self._floats = np.zeros(PF_SIZE)
+        self._events_buf = np.zeros((events_capacity, PL.N_PATH_EVENT_COLUMNS))
+        self._floats = np.zeros(PL.PF_SIZE)
         self._ints = np.zeros(I_SIZE, dtype=np.int64)
         self._make_views()
         self._empty_grid = np.zeros(0)
@@ -62,16 +49,16 @@ class PathsSimulator(Simulator):
     def _make_views(self):
         f = self._floats
         n = L.N_STATE + self.n_paths
-        self.y = f[PF_Y:PF_Y + n]
-        self.P = f[PF_P:PF_ACT]
-        self.ACT = f[PF_ACT:PF_S].reshape(L.N_ACT_SEGMENTS, 4)
-        self.S = f[PF_S:PF_H]
-        self.h_io = f[PF_H:PF_LEDGER]
-        self.ledger = f[PF_LEDGER:PF_DY]
-        self._dy = f[PF_DY:PF_DY + n]
-        self._aux_block = f[PF_AUX:PF_ROW]
-        self._row = f[PF_ROW:PF_ROW + len(self.columns)]   # the period's sample (period.py)
-        self._scratch = f[PF_SCRATCH:PF_SIZE]
+        self.y = f[PL.PF_Y:PL.PF_Y + n]
+        self.P = f[PL.PF_P:PL.PF_ACT]
+        self.ACT = f[PL.PF_ACT:PL.PF_S].reshape(L.N_ACT_SEGMENTS, 4)
+        self.S = f[PL.PF_S:PL.PF_H]
+        self.h_io = f[PL.PF_H:PL.PF_LEDGER]
+        self.ledger = f[PL.PF_LEDGER:PL.PF_DY]
+        self._dy = f[PL.PF_DY:PL.PF_DY + n]
+        self._aux_block = f[PL.PF_AUX:PL.PF_ROW]
+        self._row = f[PL.PF_ROW:PL.PF_ROW + len(self.columns)]   # the period's sample (period.py)
+        self._scratch = f[PL.PF_SCRATCH:PL.PF_SIZE]
         self.ms = self._ints[I_MS:I_COUNTERS]
         self.counters = self._ints[I_COUNTERS:]
 
@@ -124,12 +111,12 @@ class PathsSimulator(Simulator):
 
     @staticmethod
     def _switches_of(rows):
-        return [ClutchSwitch(row[AL.E_T], bool(int(row[AL.E_MODE]) >> int(row[E_PATH]) & 1),
+        return [ClutchSwitch(row[AL.E_T], bool(int(row[AL.E_MODE]) >> int(row[PL.E_PATH]) & 1),
                              _KIND_NAMES[int(row[AL.E_KIND])], row[AL.E_VALUE],
-                             int(row[E_PATH]) + 1) for row in rows]
+                             int(row[PL.E_PATH]) + 1) for row in rows]
 
     def _count_path_switches(self, rows, switched):
-        paths = rows[rows[:, AL.E_KIND] != KIND_GRAZE, E_PATH].astype(np.int64)
+        paths = rows[rows[:, AL.E_KIND] != KIND_GRAZE, PL.E_PATH].astype(np.int64)
         for k, count in enumerate(np.bincount(paths, minlength=self.n_paths)):
             self.path_switch_counts[k] += int(count)
 

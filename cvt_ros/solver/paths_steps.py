@@ -4,7 +4,7 @@ right-hand side, the Hairer–Nørsett–Wanner starting step, and the sample ro
 columns (output.path_columns)."""
 import math
 
-from ..physics.compiled import kernel
+from ..physics.compiled import inline_kernel, kernel
 from ..physics.layout import AUX_CRANK_LENGTH
 from ..physics.paths import (
     A_SPEED,
@@ -59,27 +59,28 @@ def paths_step(method, t, y, h, mode, P, ACT, K, y_new, ytmp, aux, rtol, atol, c
     return math.sqrt(total / ERR_FULL.shape[0])
 
 
+@inline_kernel
+def _scaled_rms(v, y, rtol, atol):
+    """The RMS over the error-controlled states of v scaled by atol + rtol·|y|."""
+    total = 0.0
+    for i in ERR_FULL:
+        total += (v[i] / (atol + abs(y[i]) * rtol)) ** 2
+    return math.sqrt(total / ERR_FULL.shape[0])
+
+
 @kernel
 def paths_initial_step(t, y, mode, P, ACT, f0, rtol, atol, ytmp, ftmp, aux):
-    """The Hairer–Nørsett–Wanner starting step of order 5 (as steppers.initial_step)."""
-    d = 0.0
-    d_rate = 0.0
-    for i in ERR_FULL:
-        w = atol + abs(y[i]) * rtol
-        d += (y[i] / w) ** 2
-        d_rate += (f0[i] / w) ** 2
-    m = ERR_FULL.shape[0]
-    d = math.sqrt(d / m)
-    d_rate = math.sqrt(d_rate / m)
-    h0 = 0.01 * d / d_rate if d >= 1e-5 and d_rate >= 1e-5 else 1e-6
+    """The Hairer–Nørsett–Wanner starting step of order 5 (as steppers.initial_step): a first
+    guess from the sizes of y and y', corrected by the change of y' over it."""
+    size = _scaled_rms(y, y, rtol, atol)
+    rate = _scaled_rms(f0, y, rtol, atol)
+    h0 = 0.01 * size / rate if size >= 1e-5 and rate >= 1e-5 else 1e-6
     for i in range(y.shape[0]):
         ytmp[i] = y[i] + h0 * f0[i]
     paths_rhs(t + h0, ytmp, mode, P, ACT, ftmp, aux)
-    d_curv = 0.0
-    for i in ERR_FULL:
-        d_curv += ((ftmp[i] - f0[i]) / (atol + abs(y[i]) * rtol)) ** 2
-    d_curv = math.sqrt(d_curv / m) / h0
-    top = max(d_rate, d_curv)
+    for i in range(y.shape[0]):
+        ftmp[i] -= f0[i]
+    top = max(rate, _scaled_rms(ftmp, y, rtol, atol) / h0)
     h1 = max(1e-6, h0 * 1e-3) if top <= 1e-15 else (0.01 / top) ** 0.2
     return min(100.0 * h0, h1)
 

@@ -13,20 +13,8 @@ band at the step's end with nothing located is 'late' (FOUND_LATE), as for one p
 """
 import math
 
+from ..physics import layout as L
 from ..physics.compiled import kernel
-from ..physics.layout import (
-    OMEGA3,
-    OMEGA4,
-    P_C,
-    P_J3,
-    P_J4,
-    P_KD,
-    P_LOAD_QUADRATIC,
-    P_LOAD_TORQUE,
-    P_LOAD_VISCOUS,
-    P_RIGID,
-    TWIST,
-)
 from ..physics.paths import (
     A_SLIP,
     A_TORQUE,
@@ -38,20 +26,10 @@ from ..physics.paths import (
     slip_band,
     torque_band,
 )
+from . import witness
 from .advance_layout import C_RHS, CROSSING, FOUND_LATE, NO_EVENT
 from .guard_watch import DIP_CHECK
 from .steppers import dense_coefficients, dense_state
-from .witness import (
-    N_GUARD,
-    N_POLY,
-    first_root,
-    guard_rate,
-    guard_value,
-    illinois_point,
-    illinois_update,
-    lowest_point,
-    poly_root,
-)
 
 N_LOOKS = 8   # looks at a guard without a polynomial (two clutches engaged) per step
 
@@ -78,39 +56,39 @@ def true_path_guard(k, method, theta, t, h, y0, y1, K, mode, P, ACT, ytmp, dytmp
 @kernel
 def path_guard_polynomial(k, method, h, y0, y1, K, mode, P, C, G):
     """Coefficients G of path k's guard over the step as a polynomial in θ ∈ [0, 1] (C: scratch
-    (3, N_POLY)); False when it is none (two clutches engaged). A lone engaged clutch passes
+    (3, witness.N_POLY)); False when it is none (two clutches engaged). A lone engaged clutch passes
     λ = Jn·ωn' − Fn: J3·ω3' + c·θ + k·(ω3 − ω4), or (J3 + J4)·ω4' + M4(ω4) behind a rigid
     shaft (ω' the polynomial's θ-derivative over h)."""
-    for i in range(N_GUARD):
+    for i in range(witness.N_GUARD):
         G[i] = 0.0
     if not mode & bit(k):
-        dense_coefficients(method, h, y0, y1, K, OMEGA3, C[0])
+        dense_coefficients(method, h, y0, y1, K, L.OMEGA3, C[0])
         dense_coefficients(method, h, y0, y1, K, V_PATH + k, C[1])
-        for i in range(N_POLY):
+        for i in range(witness.N_POLY):
             G[i] = C[0, i] - C[1, i]
         return True
     if set_size(mode) != 1:
         return False
-    rigid = P[P_RIGID] > 0.0
-    node = OMEGA4 if rigid else OMEGA3
+    rigid = P[L.P_RIGID] > 0.0
+    node = L.OMEGA4 if rigid else L.OMEGA3
     dense_coefficients(method, h, y0, y1, K, node, C[0])
-    inertia = (P[P_J3] + P[P_J4] if rigid else P[P_J3]) / h
-    for i in range(N_POLY - 1):
+    inertia = (P[L.P_J3] + P[L.P_J4] if rigid else P[L.P_J3]) / h
+    for i in range(witness.N_POLY - 1):
         G[i] = inertia * (i + 1) * C[0, i + 1]
     if rigid:
-        G[0] += P[P_LOAD_TORQUE]
-        kq = P[P_LOAD_QUADRATIC]
+        G[0] += P[L.P_LOAD_TORQUE]
+        kq = P[L.P_LOAD_QUADRATIC]
         if kq != 0.0:   # ω·|ω| with the sign ω has mid-step (physics: witness.guard_polynomial)
-            kq = kq if guard_value(C[0], 0.5) >= 0.0 else -kq
+            kq = kq if witness.guard_value(C[0], 0.5) >= 0.0 else -kq
         for i in range(5):
-            G[i] += P[P_LOAD_VISCOUS] * C[0, i]
+            G[i] += P[L.P_LOAD_VISCOUS] * C[0, i]
             for j in range(5):
                 G[i + j] += kq * C[0, i] * C[0, j]
         return True
-    dense_coefficients(method, h, y0, y1, K, TWIST, C[1])
-    dense_coefficients(method, h, y0, y1, K, OMEGA4, C[2])
-    for i in range(N_POLY):
-        G[i] += P[P_C] * C[1, i] + P[P_KD] * (C[0, i] - C[2, i])
+    dense_coefficients(method, h, y0, y1, K, L.TWIST, C[1])
+    dense_coefficients(method, h, y0, y1, K, L.OMEGA4, C[2])
+    for i in range(witness.N_POLY):
+        G[i] += P[L.P_C] * C[1, i] + P[L.P_KD] * (C[0, i] - C[2, i])
     return True
 
 
@@ -145,10 +123,10 @@ def locate_path_root(k, method, t, h, y0, y1, K, mode, P, ACT, lo, hi, glo, ghi,
     for it in range(100):
         if hi - lo <= tol_theta:
             break
-        m = nxt if lo < nxt < hi else illinois_point(it, lo, hi, glo, ghi)
+        m = nxt if lo < nxt < hi else witness.illinois_point(it, lo, hi, glo, ghi)
         gm = true_path_guard(k, method, m, t, h, y0, y1, K, mode, P, ACT, ytmp, dytmp, auxtmp,
                              counters)
-        lo, hi, glo, ghi, side = illinois_update(m, gm, lo, hi, glo, ghi, side)
+        lo, hi, glo, ghi, side = witness.illinois_update(m, gm, lo, hi, glo, ghi, side)
         if side == 0:
             break
         s = slope if m_prev < 0.0 else (gm - g_prev) / (m - m_prev)
@@ -174,21 +152,21 @@ def path_crossing(k, armed, g0, g1, band, method, t, h, y0, y1, K, mode, P, ACT,
         if poly:
             if g1 < 0.0:
                 hi, ghi = 1.0, g1
-                ga, gb = guard_value(G, 0.0), guard_value(G, 1.0)
+                ga, gb = witness.guard_value(G, 0.0), witness.guard_value(G, 1.0)
                 if ga > 0.0 > gb:
-                    start = first_root(G, ga, gb, tol_theta)
+                    start = witness.first_root(G, ga, gb, tol_theta)
             else:   # a dip through zero and back inside the step
-                tm, gm = lowest_point(G, -band)
+                tm, gm = witness.lowest_point(G, -band)
                 if gm < -band or (tm > 0.0 and gm < DIP_CHECK * min(g0, g1)):
                     gt = true_path_guard(k, method, tm, t, h, y0, y1, K, mode, P, ACT, ytmp,
                                          dytmp, auxtmp, counters)
                     if gt < -band:
                         hi, ghi = tm, gt
-                        ga = guard_value(G, 0.0)
+                        ga = witness.guard_value(G, 0.0)
                         if gm < 0.0 < ga:
-                            start = poly_root(G, 0.0, tm, ga, gm, tol_theta)
+                            start = witness.poly_root(G, 0.0, tm, ga, gm, tol_theta)
             if start >= 0.0:
-                slope = guard_rate(G, start)
+                slope = witness.guard_rate(G, start)
         else:
             m, g, lo, glo = _look(k, 1.0, 0.0, method, t, h, y0, y1, K, mode, P, ACT, 0.0,
                                   ytmp, dytmp, auxtmp, counters)
@@ -200,9 +178,9 @@ def path_crossing(k, armed, g0, g1, band, method, t, h, y0, y1, K, mode, P, ACT,
         # from inside its band (just after a switch) to below it: located if the guard left
         # the band upwards first (a short phase), else late
         if poly:
-            for i in range(N_GUARD - 1):
+            for i in range(witness.N_GUARD - 1):
                 G[i] = -G[i]            # the highest point: the lowest of −guard
-            top, _ = lowest_point(G, -band)
+            top, _ = witness.lowest_point(G, -band)
             if top > 0.0:
                 gt = true_path_guard(k, method, top, t, h, y0, y1, K, mode, P, ACT, ytmp,
                                      dytmp, auxtmp, counters)

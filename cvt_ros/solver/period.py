@@ -32,23 +32,10 @@ from ..physics.dynamics import rhs
 from ..physics.paths import P_PATHS, paths_rhs
 from . import advance_layout as AL
 from . import hybrid
+from . import paths_layout as PL
 from .averaged import AveragedSimulator, averaged_advance, averaged_sample
 from .output import COL, N_COLUMNS, write_sample
 from .paths_hybrid import advance_paths
-from .paths_layout import (
-    N_PATH_COLUMNS,
-    PF_ACT,
-    PF_AUX,
-    PF_DY,
-    PF_H,
-    PF_LEDGER,
-    PF_P,
-    PF_ROW,
-    PF_S,
-    PF_SCRATCH,
-    PF_SIZE,
-    PF_Y,
-)
 from .paths_simulator import PathsSimulator
 from .paths_steps import write_paths_sample
 from .simulator import (
@@ -125,25 +112,25 @@ def hybrid_period(t, dt, h_fixed, F, I, LIN, events, turns1, turns4):
 def paths_period(t, dt, h_fixed, F, I, events, turns1, turns4):
     """PathsSimulator.advance(dt) then .sample() into its row, over its blocks
     (paths_layout.PF_*): (t, code, crank rate), as hybrid_period."""
-    n = int(F[PF_P + P_PATHS])
-    columns = N_COLUMNS + N_PATH_COLUMNS * n
-    y = F[PF_Y:PF_Y + L.N_STATE + n]
-    P = F[PF_P:PF_ACT]
-    ACT = F[PF_ACT:PF_S].reshape((L.N_ACT_SEGMENTS, 4))
-    S = F[PF_S:PF_H]
+    n = int(F[PL.PF_P + P_PATHS])
+    columns = N_COLUMNS + PL.N_PATH_COLUMNS * n
+    y = F[PL.PF_Y:PL.PF_Y + L.N_STATE + n]
+    P = F[PL.PF_P:PL.PF_ACT]
+    ACT = F[PL.PF_ACT:PL.PF_S].reshape((L.N_ACT_SEGMENTS, 4))
+    S = F[PL.PF_S:PL.PF_H]
     no_grid = F[:0]
     if S[AL.S_METHOD] == RK4:
         S[AL.S_H_FIXED] = dt / max(1, math.ceil(dt / h_fixed - 1e-9))
     ms = I[I_MS:I_COUNTERS]
     counters = I[I_COUNTERS:]
-    t = advance_paths(t, t + dt, y, ms, P, ACT, S, F[PF_H:PF_LEDGER], no_grid,
-                      no_grid.reshape((0, columns)), events, counters, F[PF_LEDGER:PF_DY],
-                      F[PF_SCRATCH:PF_SIZE])
+    t = advance_paths(t, t + dt, y, ms, P, ACT, S, F[PL.PF_H:PL.PF_LEDGER], no_grid,
+                      no_grid.reshape((0, columns)), events, counters, F[PL.PF_LEDGER:PL.PF_DY],
+                      F[PL.PF_SCRATCH:PL.PF_SIZE])
     if counters[AL.C_STATUS] != AL.STATUS_OK or _rebase_due(y):
         return t, UNFINISHED, 0.0
-    row = F[PF_ROW:PF_ROW + columns]
-    paths_rhs(t, y, ms[0], P, ACT, F[PF_DY:PF_DY + L.N_STATE + n], F[PF_AUX:PF_ROW])
-    write_paths_sample(row, t, y, ms[0], F[PF_AUX:PF_ROW], P)
+    row = F[PL.PF_ROW:PL.PF_ROW + columns]
+    paths_rhs(t, y, ms[0], P, ACT, F[PL.PF_DY:PL.PF_DY + L.N_STATE + n], F[PL.PF_AUX:PL.PF_ROW])
+    write_paths_sample(row, t, y, ms[0], F[PL.PF_AUX:PL.PF_ROW], P)
     row[_PHI1] += turns1
     row[_PHI3] += turns4
     row[_PHI4] += turns4

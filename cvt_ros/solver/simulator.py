@@ -183,20 +183,19 @@ class Simulator:
     """The pulse CVT as a hybrid dynamical system with event-located integration.
 
     ``values``: scene parameters by dotted name (validated here). Time t [s] starts at 0.
-    A machine of ``paths.count`` ≥ 2 is made a PathsSimulator (paths_simulator.py, the N-path
-    core); one path runs the one-path core below.
+    One path: a machine of ``paths.count`` ≥ 2 runs on the N-path core, a PathsSimulator
+    (paths_simulator.py) with the same interface; fidelity.make_simulator makes either.
     """
     columns = COLUMNS   # of the sample rows (output.py)
     n_paths = 1
 
-    def __new__(cls, values=None, events_capacity=4096):
-        if cls is Simulator and values and params_mod.validate(values)['paths.count'] > 1:
-            from .paths_simulator import PathsSimulator
-            return super().__new__(PathsSimulator)
-        return super().__new__(cls)
-
     def __init__(self, values=None, events_capacity=4096):
         self.values = params_mod.validate(values or {})
+        if self.values['paths.count'] > 1:
+            raise params_mod.ParameterError(
+                'paths.count', f"{self.values['paths.count']} paths run on the N-path core: "
+                f"make the simulator with solver.fidelity.make_simulator(values) (or "
+                f"solver.paths_simulator.PathsSimulator), not Simulator")
         self._events_buf = np.zeros((events_capacity, AL.N_EVENT_COLUMNS))
         self._floats = np.zeros(F_SIZE)
         self._ints = np.zeros(I_SIZE, dtype=np.int64)
