@@ -27,9 +27,20 @@ from ..physics.drives import next_actuator_break
 from ..physics.dynamics import finite_state
 from ..physics.layout import P_C, P_J3, P_KD, P_RIGID, TWIST
 from ..physics.path_contacts import settle_contacts
-from ..physics.paths import MAX_PATHS, N_PATH_AUX, bit, n_paths, paths_project, paths_rhs, set_size
+from ..physics.paths import (
+    A_SLIP,
+    A_SLIP_RATE,
+    MAX_PATHS,
+    N_PATH_AUX,
+    bit,
+    n_paths,
+    paths_project,
+    paths_rhs,
+    set_size,
+)
 from . import advance_layout as AL
 from .dense_step import sample_due
+from .guard_watch import SETTLE_BANDS, SETTLE_OVERSHOOT, SETTLE_STEPS
 from .hybrid import (
     ERR_OLD_START,
     FILTER_ALPHA,
@@ -82,6 +93,42 @@ def _resized(err):
     if err == 0.0:
         return MAX_FACTOR
     return min(MAX_FACTOR, max(MIN_FACTOR, SAFETY * err ** DP_ERROR_EXPONENT))
+
+
+@kernel
+def _creep_onto_catch(method, t, t_end, y, y_new, K, path, mode, P, ACT, aux1, ytmp, rtol, atol,
+                      grid, out, counters, dytmp, auxtmp):
+    """Short true steps from a landing short of path's catch (y at t, K[6] and aux1 its rates)
+    to the slip's band, each SETTLE_OVERSHOOT × the Newton step on the exact slip rate (as
+    guard_watch.creep_onto_catch for one path); stops at the band or past it, or where a step
+    would go further past zero than the first landing fell short. Returns (t, slip)."""
+    g = aux1[A_SLIP + path]
+    first = g
+    n = y.shape[0]
+    if g > SETTLE_BANDS * path_guard(path, mode, aux1, P)[1]:
+        return t, g
+    for _ in range(SETTLE_STEPS):
+        rate = aux1[A_SLIP_RATE + path]
+        dt = SETTLE_OVERSHOOT * g / -rate if rate < 0.0 else -1.0
+        if not (dt > 0.0 and t + dt <= t_end):
+            break
+        for i in range(n):
+            K[0, i] = K[6, i]
+        paths_step(method, t, y, dt, mode, P, ACT, K, y_new, ytmp, aux1, rtol, atol, counters)
+        if aux1[A_SLIP + path] < -first:   # too far past: stay (aux1 back at y)
+            paths_rhs(t, y, mode, P, ACT, K[6], aux1)
+            counters[AL.C_RHS] += 1
+            break
+        if sample_due(grid, counters, t + dt):
+            emit_paths_samples(method, t, dt, y, y_new, K, mode, P, ACT, grid, out, counters,
+                               t + dt, ytmp, dytmp, auxtmp)
+        t += dt
+        for i in range(n):
+            y[i] = y_new[i]
+        g = aux1[A_SLIP + path]
+        if g <= path_guard(path, mode, aux1, P)[1]:
+            break
+    return t, g
 
 
 @inline_kernel
@@ -220,6 +267,13 @@ def advance_paths(t, t_end, y, ms, P, ACT, S, h_io, grid, out, events, counters,
         for i in range(n):
             y[i] = y_new[i]
         value, band = path_guard(path, mode, aux1, P) if path >= 0 else (0.0, 0.0)
+        if fire == AL.CROSSING and value > band and not mode & bit(path):
+            # a catch whose re-taken step landed short of the slip's band by the dense
+            # output's error: true steps on by Newton on the slip's exact rate (a new step
+            # would find the catch again at its very start: a sliver and a restart more)
+            t, value = _creep_onto_catch(method, t, t_end, y, y_new, K, path, mode, P, ACT,
+                                         aux1, ytmp, rtol, atol, grid, out, counters, dytmp,
+                                         auxtmp)
         if fire == AL.NO_EVENT or (fire == AL.CROSSING and value > band):
             # no switch, or the true state has not reached the guard yet: go on from here
             if fire == AL.NO_EVENT:
