@@ -4,6 +4,7 @@ knows parameter names; the scene loader, the CLI's ``--set``, the node's declare
 
 Defaults are the paper's Fig. 2/3 scene (physics.md §6).
 """
+import array
 import difflib
 import math
 from dataclasses import dataclass
@@ -127,7 +128,12 @@ class ParameterSpec:
 
 
     def _check_list(self, value):
-        """A list of numbers (a ROS double array) → a tuple of floats, each finite and in range."""
+        """A list of numbers (a ROS double array) → a tuple of floats, each finite and in range.
+        None is the empty list (what ROS makes of ``[]`` in a params file: no type to infer)."""
+        if value is None:
+            return ()
+        if isinstance(value, array.array):   # what rclpy gives for a double array
+            value = value.tolist()
         if not isinstance(value, (list, tuple)):
             raise ParameterError(self.name, f"expected a list of numbers [{self.unit}] (e.g. "
                                             f"[0, 3.14159]), got {_short(value)}")

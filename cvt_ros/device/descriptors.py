@@ -53,7 +53,11 @@ def node_values(base_scene=DEFAULT_SCENE, overrides=None):
     raw.setdefault('solver.method', start_solver(raw.get('time_mode',
                                                          params_mod.SPECS['time_mode'].default)))
     try:
-        return params_mod.validate(raw)
+        values = params_mod.validate(raw)
+        # the node's offsets are explicit (its double-array parameter: ROS cannot type an
+        # empty one), the scene's default spelled out
+        values['paths.phase_offsets'] = params_mod.phase_offsets(values)
+        return values
     except (ParameterError, GrashofError) as exc:
         where = f" (base scene {base_scene})" if base_scene else ''
         raise SceneError(f"invalid scene parameters{where}: {exc}") from None
