@@ -83,6 +83,14 @@ def test_the_one_path_simulator_refuses_several_paths():
     assert type(make_simulator({'paths.count': 1})) is Simulator
 
 
+def test_phase_offsets_come_as_ros_gives_them():
+    """A params file's [] reaches the node as None; rclpy gives a double array as array('d')."""
+    import array
+    assert validate({'paths.phase_offsets': None})['paths.phase_offsets'] == ()
+    assert validate({'paths.count': 2, 'paths.phase_offsets': array.array('d', [0.0, 2.0])})[
+        'paths.phase_offsets'] == (0.0, 2.0)
+
+
 def test_phase_offsets_default_to_even_spacing():
     assert phase_offsets(validate({})) == (0.0,)
     assert phase_offsets(validate({'paths.count': 4})) == pytest.approx(
