@@ -7,7 +7,8 @@ RK4 stability limit, the long run, the known-defect checks); ``cvt-sim bench nod
 node's benchmark (cvt_ros.bench.node); ``cvt-sim bench fidelity ARGS`` the fidelity table;
 ``cvt-sim bench sweep ARGS`` the Dask campaign benchmark (cvt_ros.bench.sweep); ``cvt-sim bench
 design ARGS`` the design tools (cvt_ros.bench.design); ``cvt-sim bench
-profile ARGS`` where the core's time goes at steady state (Linux perf, cvt_ros.bench.profile).
+profile ARGS`` where the core's time goes at steady state (Linux perf, cvt_ros.bench.profile);
+``cvt-sim bench paths`` what N paths cost (cvt_ros.bench.paths).
 """
 import argparse
 import importlib
@@ -55,7 +56,7 @@ from .work_precision import (
 
 SECTIONS = ('work', 'steady', 'scaling', 'events', 'hard', 'stability', 'long', 'defects')
 # modules with their own main(argv)
-SUBCOMMANDS = ('node', 'fidelity', 'sweep', 'profile', 'design')
+SUBCOMMANDS = ('node', 'fidelity', 'sweep', 'profile', 'design', 'paths')
 
 
 def page(cfg, env, parts, plots, command, wall_total):
