@@ -47,7 +47,10 @@ class HarnessError(RuntimeError):
 
 
 def load_controller(spec, scenario):
-    """``MODULE:FACTORY`` → the controller ``FACTORY(scenario)`` (or ``FACTORY()``) returns."""
+    """``MODULE:FACTORY`` → the controller ``FACTORY(scenario)`` returns, or ``FACTORY()`` when it
+    takes no argument. A class is the controller's type, its constructor's parameters its own
+    settings (``MyPI(kp=2e-3, ...)``): it gets the scenario only as a parameter named
+    ``scenario``, else it is built with its defaults."""
     module_name, sep, attr = str(spec).partition(':')
     if not sep or not module_name or not attr:
         raise HarnessError(f"--controller {spec!r}: expected MODULE:FACTORY, e.g. {REFERENCE}")
@@ -62,9 +65,10 @@ def load_controller(spec, scenario):
         if factory is None:
             raise HarnessError(f"--controller {spec!r}: {module_name} has no {attr}")
     try:
-        takes_scenario = bool(inspect.signature(factory).parameters)
+        parameters = inspect.signature(factory).parameters
+        takes_scenario = 'scenario' in parameters if inspect.isclass(factory) else bool(parameters)
     except (TypeError, ValueError):
-        takes_scenario = True
+        takes_scenario = not inspect.isclass(factory)
     try:
         controller = factory(scenario) if takes_scenario else factory()
     except Exception as exc:   # noqa: BLE001
