@@ -4,7 +4,8 @@
 RK4 stability limit, the long run, the known-defect checks); ``cvt-sim bench node ARGS`` the ROS
 node's benchmark (cvt_ros.bench.node); ``cvt-sim bench fidelity ARGS`` the fidelity table;
 ``cvt-sim bench sweep ARGS`` the Dask campaign benchmark (cvt_ros.bench.sweep); ``cvt-sim bench
-profile ARGS`` where the core's time goes at steady state (Linux perf, cvt_ros.bench.profile).
+profile ARGS`` where the core's time goes at steady state (Linux perf, cvt_ros.bench.profile);
+``cvt-sim bench compile ARGS`` what compiling the kernels costs a first run (cvt_ros.bench.compile).
 """
 import argparse
 import importlib
@@ -51,7 +52,7 @@ from .work_precision import (
 )
 
 SECTIONS = ('work', 'steady', 'scaling', 'events', 'hard', 'stability', 'long', 'defects')
-SUBCOMMANDS = ('node', 'fidelity', 'sweep', 'profile')   # modules with their own main(argv)
+SUBCOMMANDS = ('node', 'fidelity', 'sweep', 'profile', 'compile')   # modules with own main(argv)
 
 
 def page(cfg, env, parts, plots, command, wall_total):
@@ -168,7 +169,8 @@ def parse_args(argv):
                'other benchmarks: cvt-sim bench node --help (the ROS node), '
                'cvt-sim bench fidelity --help (each fidelity against the full model), '
                'cvt-sim bench sweep --help (Dask campaigns), '
-               'cvt-sim bench profile --help (a perf profile of the steady-state runs)')
+               'cvt-sim bench profile --help (a perf profile of the steady-state runs), '
+               'cvt-sim bench compile --help (the first run\'s kernel compilation)')
     ap.add_argument('--quick', action='store_true', help='CI-sized: short spans, fewer points')
     ap.add_argument('--out', default='BENCHMARKS.md', help='markdown report (default %(default)s)')
     ap.add_argument('--plots', default='docs/plots', help='PNG directory (default %(default)s)')
