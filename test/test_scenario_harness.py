@@ -106,6 +106,10 @@ def test_mcap_is_read_back_by_the_analysis(load_step_run, tmp_path):
     assert [(c.t, c.value) for c in loads] == [(4.0, 14.0), (10.0, 8.0)]
     assert len(tr.switch_t) == len(run.switches)
     assert tr.parameters['load.torque'] == 8.0
+    assert tr.setpoint == [(0.0, 55.0)]                        # /setpoint: drawn by analyze
+    from cvt_ros.analysis.analyze import analyze_trace
+    from cvt_ros.analysis.plots import fig_timeseries
+    fig_timeseries(analyze_trace(tr), str(tmp_path / 'ts.png'))
 
 
 class Boom:

@@ -132,11 +132,11 @@ def section(runs, labels, command, env):
         row += [sum(base['versions'][n] for n in others),
                 f"{sum(base['own'][n] for n in others):.2f}", '']
     rows.append(row)
-    for which in ('this', 'baseline'):
-        if which in first:
-            r = first[which]
-            rows.append([f"**all** ({labels[which]})", sum(r['versions'].values()),
-                         f"{sum(r['own'].values()):.1f}", ''] + (['', '', ''] if base else []))
+    r = first['this']
+    row = ['**all**', sum(r['versions'].values()), f"{sum(r['own'].values()):.1f}", '']
+    if base:
+        row += [sum(base['versions'].values()), f"{sum(base['own'].values()):.1f}", '']
+    rows.append(row)
     L += ['', f"Per kernel, the first run of each revision (the {TOP} costliest here; "
           "'inlined': the baseline compiled no version of its own, its callers copied it):", '']
     L += table(header, rows)

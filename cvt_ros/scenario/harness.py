@@ -214,7 +214,9 @@ def _loop(scenario, controller, plant, controller_name, progress):
     # metrics are computed from these times
     samples[:, 0] = np.round(samples[:, 0] * 1e9) * 1e-9
     recorded = plant.recorded_samples(k * dt) if hasattr(plant, 'recorded_samples') else None
-    if recorded is not None and len(recorded[0]):
+    if recorded is not None and recorded[0] is None:
+        switches = recorded[1]   # dds lockstep: the switches at their own times (its recording)
+    elif recorded is not None and len(recorded[0]):
         # realtime: the device's own recording has every period; the controller saw `keep`
         samples, switches, external = recorded
         keep = np.clip(np.round(samples[:, 0] / dt).astype(int), 0, n)
@@ -226,4 +228,7 @@ def _loop(scenario, controller, plant, controller_name, progress):
                        samples=samples, setpoint=setpoint[keep], load=load[keep],
                        commands=commands[keep], switches=switches, clamped=clamped,
                        wall_time=wall, error=error, exception=exception,
-                       realtime=getattr(plant, 'realtime', None))
+                       realtime=getattr(plant, 'realtime', None),
+                       domain=getattr(plant, 'domain', None),
+                       node_timing=getattr(plant, 'node_timing', None),
+                       diagnostics=list(getattr(plant, 'diagnostics', ())))
