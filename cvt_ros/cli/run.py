@@ -116,7 +116,12 @@ def format_summary(summary, scene, fidelity='full'):
         f"torque, a cycle mean: {s['peak_clutch_torque_Nm']:.4f} N·m); impacts: --fidelity full",
         f"energy balance   residual {s['energy_residual_J']:.3e} J = "
         f"{s['energy_residual_relative']:.2e} of the work done",
-        f"solver           {s['steps']} steps, {s['rejected_steps']} rejected",
+        f"solver           {s['steps']} steps, {s['rejected_steps']} rejected"
+        + (f" ({s['solver']})" if s.get('solver') else ''),
+        f"self-check       {s.get('possible_missed_events', 0)} switches found late, "
+        f"{s.get('stray_samples', 0)} samples outside their clutch mode"
+        + (" (possibly missed events: see the warnings)"
+           if s.get('possible_missed_events') or s.get('stray_samples') else ''),
         f"wall time        {s['wall_time_s']:.4f} s, real-time factor "
         f"{s['real_time_factor']:.0f}x",
     ]
