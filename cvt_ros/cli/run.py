@@ -227,11 +227,16 @@ def scenes_command(args):
 
 def params_command(args):
     if args.node:
-        from ..device.descriptors import DEFAULT_SCENE, node_values
+        from ..device.descriptors import DEFAULT_SCENE, REALTIME_SOLVER_WHY, node_values
+        from ..solver.simulator import fixed_step
         values = node_values(args.scene or DEFAULT_SCENE)
         source = (f"cvt_node's start values (base scene {args.scene or DEFAULT_SCENE}; "
                   "solver.method, unless the scene sets it: rk4 starting in realtime, "
                   "dopri5 in lockstep or fast)")
+        if not args.markdown:
+            print(f"# {REALTIME_SOLVER_WHY}")
+            if values['solver.method'] == 'rk4':
+                print(f"# this scene in realtime: {fixed_step(values)[2]}")
     else:
         values = load_scene(args.scene) if args.scene else load_scene(None)
         source = f"scene {resolve(args.scene)}" if args.scene else \

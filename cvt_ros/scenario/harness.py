@@ -218,8 +218,11 @@ def _loop(scenario, controller, plant, controller_name, progress):
             commands = np.full(n + 1, np.nan)
             for t, value in external:
                 commands[min(int(round(t / dt)), n)] = value
+    # the solver's self-check where the plant runs in this process (a node over DDS reports it
+    # on its /diagnostics and in its own recording)
+    self_check = plant.self_check() if hasattr(plant, 'self_check') else None
     return ScenarioRun(scenario=scenario, backend=plant.name, controller=controller_name,
                        samples=samples, setpoint=setpoint[keep], load=load[keep],
                        commands=commands[keep], switches=switches, clamped=clamped,
                        wall_time=wall, error=error, exception=exception,
-                       realtime=getattr(plant, 'realtime', None))
+                       realtime=getattr(plant, 'realtime', None), self_check=self_check)

@@ -31,6 +31,15 @@ class ScenarioRun:
     error: str = None
     exception: BaseException = None
     realtime: float = None      # dds back end against the wall clock: its real-time factor
+    # the solver's self-check (Simulator.self_check(); None: the plant ran in another process)
+    self_check: dict = None
+
+    @property
+    def possible_missed_events(self):
+        """Clutch events the solver may have missed in this run (its self-check), or None."""
+        if self.self_check is None:
+            return None
+        return self.self_check['possible_missed_events'] + self.self_check['stray_samples']
 
     @property
     def backend_text(self):
@@ -141,6 +150,7 @@ class ScenarioRun:
             'completed': self.ok, 'error': self.error,
             'wall_time': self.wall_time, 'real_time_factor': self.real_time_factor,
             'commands_clamped': self.clamped, 'clutch_switches': len(self.switches),
+            'solver_self_check': self.self_check,
             'units': dict(METRICS),
             'metrics': dict(self.metrics),
             'steps': [dict(s) for s in self.steps],
@@ -169,7 +179,10 @@ class ScenarioRun:
 
     def summary_line(self):
         status = 'completed' if self.ok else f"STOPPED: {self.error}"
+        missed = self.possible_missed_events
+        suspect = (f", {missed} possibly missed clutch events (the solver's self-check: "
+                   f"{self.self_check['solver']})" if missed else '')
         return (f"{self.scenario.name}: {self.backend_text}, {self.duration:g} s simulated in "
                 f"{self.wall_time:.3f} s ({self.real_time_factor:.3g}x real time), "
-                f"{len(self.switches)} clutch switches, {self.clamped} commands clamped; "
-                f"{status}")
+                f"{len(self.switches)} clutch switches{suspect}, {self.clamped} commands "
+                f"clamped; {status}")

@@ -198,6 +198,30 @@ def resolution_warnings(values, exact_output, h_fixed):
             f"or model.fidelity rigid_shaft / averaged, runs in reasonable time"]
 
 
+def fixed_step(values):
+    """rk4's step for these values: (h_stable, h_fixed, note, warning). h_stable = 0.5/λ for the
+    fastest rate the fixed step integrates (stepped_rates); h_fixed the step taken (solver.
+    fixed_step, refined to h_stable with solver.refine_step auto); note: one line saying so
+    ('' for dopri5); warning: a step beyond RK4's stability bound kept (refine_step off), or ''.
+    """
+    rate, what = stepped_rates(values)[0]
+    h_stable = RK4_STEP_BY_MODE / rate
+    asked = values['solver.fixed_step']
+    h_fixed = min(asked, h_stable) if values['solver.refine_step'] == 'auto' else asked
+    note = warning = ''
+    if values['solver.method'] == 'rk4':
+        note = f"rk4, fixed step {h_fixed:.3g} s"
+        if h_fixed < asked:
+            note += (f" (solver.fixed_step {asked:g} s refined: h·λ ≤ {RK4_STEP_BY_MODE:g} for "
+                     f"λ = {rate:.3g} 1/s, {what})")
+        elif asked * rate > RK4_STABILITY:
+            warning = (f"solver.fixed_step {asked:g} s is beyond RK4's stability bound "
+                       f"{RK4_STABILITY / rate:.3g} s (2.83/λ, λ = {rate:.3g} 1/s, {what}) and "
+                       f"solver.refine_step is off: the run may blow up or miss clutch events; "
+                       f"solver.refine_step auto refines it to {h_stable:.3g} s")
+    return h_stable, h_fixed, note, warning
+
+
 class Simulator:
     """The pulse CVT as a hybrid dynamical system with event-located integration.
 
@@ -258,6 +282,8 @@ class Simulator:
         self.switch_count = 0
         self.event_count = 0        # switches and grazes
         self.first_late_event = None
+        self.stray_count = 0        # samples of run() outside their clutch mode (self_check.py)
+        self.first_stray = None
         self._configure_steps()
         self._set_rocker_from_linkage()
         self._settle_clutch()
@@ -271,26 +297,11 @@ class Simulator:
         self.P[L.P_LINEAR_OUTPUT] = 1.0 if usable else 0.0
         self.P[L.P_OUTPUT_RATE] = rate
         self.P[L.P_OUTPUT_RING] = ring
-        rate, what = stepped_rates(self.values)[0]
-        self.h_stable = RK4_STEP_BY_MODE / rate
-        asked = self.values['solver.fixed_step']
-        self.h_fixed = asked
-        if self.values['solver.refine_step'] == 'auto':
-            self.h_fixed = min(self.h_fixed, self.h_stable)
+        self.h_stable, self.h_fixed, self.step_note, warning = fixed_step(self.values)
         self.S[:] = settings_vector(self.values, self.h_fixed)
         self.warnings = resolution_warnings(self.values, usable, self.h_fixed)
-        self.step_note = ''
-        if self.values['solver.method'] == 'rk4':
-            self.step_note = f"rk4, fixed step {self.h_fixed:.3g} s"
-            if self.h_fixed < asked:
-                self.step_note += (f" (solver.fixed_step {asked:g} s refined: h·λ ≤ "
-                                   f"{RK4_STEP_BY_MODE:g} for λ = {rate:.3g} 1/s, {what})")
-            elif asked * rate > RK4_STABILITY:
-                self.warnings.append(
-                    f"solver.fixed_step {asked:g} s is beyond RK4's stability bound "
-                    f"{RK4_STABILITY / rate:.3g} s (2.83/λ, λ = {rate:.3g} 1/s, {what}) and "
-                    f"solver.refine_step is off: the run may blow up or miss clutch events; "
-                    f"solver.refine_step auto refines it to {self.h_stable:.3g} s")
+        if warning:
+            self.warnings.append(warning)
 
     def _set_rocker_from_linkage(self):
         a, ad, _ = crank_actuator(self.t, self.ACT)
@@ -551,6 +562,8 @@ class Simulator:
             if n_stray:
                 strays += n_stray
                 first_stray = t_stray if first_stray is None else first_stray
+                self.stray_count += n_stray
+                self.first_stray = t_stray if self.first_stray is None else self.first_stray
             if len(block):
                 if keep_samples:
                     kept.append(block)
@@ -584,13 +597,24 @@ class Simulator:
                        'possible_missed_events': late,
                        'first_possible_missed_event_s': self.first_late_event if late else None,
                        'stray_samples': strays, 'first_stray_sample_s': first_stray,
-                       'solver': self.step_note or f"dopri5, rtol {self.values['solver.rtol']:g}",
-                       'warnings': warnings}
+                       'solver': self.self_check()['solver'], 'warnings': warnings}
         samples = np.concatenate(kept) if keep_samples else np.empty((0, N_COLUMNS))
         switched = self.switch_count - switch0
         return RunResult(samples, switches, wall, int(self.counters[AL.C_STEPS]) - steps0,
                          int(self.counters[AL.C_REJECTED]) - rej0, energy, diagnostics,
                          switched, self.event_count - events0 - switched)
+
+    def self_check(self):
+        """The solver's self-check since reset() (docs/solver.md): which method and step,
+        switches made late at a step's end (a guard found beyond its band: an event inside the
+        step that no watch located) and samples of run() outside their clutch mode. For the
+        device's /diagnostics, scenario results and recordings' metadata."""
+        late = int(self.counters[AL.C_LATE])
+        return {'solver': self.step_note or f"dopri5, rtol {self.values['solver.rtol']:g}",
+                'possible_missed_events': late,
+                'first_possible_missed_event_s': self.first_late_event if late else None,
+                'stray_samples': self.stray_count,
+                'first_stray_sample_s': self.first_stray}
 
     def _rebase_angles(self):
         """Fold whole turns out of φ1 and φ4 so their sines keep full precision for hours."""
