@@ -243,6 +243,17 @@ def test_real_time_mode_refines_a_step_beyond_the_stability_limit(c, j3, factor)
     assert sim.sample()[COL['phi4']] == pytest.approx(ref.sample()[COL['phi4']], rel=1e-3)
 
 
+def test_a_refined_fixed_step_says_so_naming_the_setting():
+    """rk4 asked for a step its fastest integrated rate cannot take refines it (refine_step
+    auto) and says so in the run's diagnostics, naming solver.fixed_step and the rate."""
+    sim = Simulator(dict(load_scene('stiff_shaft'), **{'solver.method': 'rk4'}))
+    result = sim.run(0.01, 1e-3)
+    note = result.diagnostics['solver']
+    assert note.startswith(f"rk4, fixed step {sim.h_fixed:.3g} s")
+    assert 'solver.fixed_step 0.0002 s refined' in note and 'twist mode' in note
+    assert not result.diagnostics['warnings']
+
+
 def test_plain_rk4_beyond_the_stability_limit_blows_up():
     """The same request with refine_step off is not stable: the experiment behind the stability
     limits in BENCHMARKS.md. c = 5e5, J3 = 1e-3: the simulator's bound on the engaged twist
