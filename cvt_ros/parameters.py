@@ -4,14 +4,17 @@ knows parameter names; the scene loader, the CLI's ``--set``, the node's declare
 
 Defaults are the paper's Fig. 2/3 scene (physics.md §6).
 """
+import array
 import difflib
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from .numbers import NotANumber, real_number
 from .physics import layout as L
 from .physics.linkage import GrashofError, check_crank_length, grashof_bound
+from .physics.paths import MAX_PATHS
 
 
 class ParameterError(ValueError):
@@ -55,6 +58,9 @@ class ParameterSpec:
             return f"one of {list(self.choices)}"
         if isinstance(self.default, str):
             return f"text of at most {self.max_length} characters"
+        if isinstance(self.default, tuple):
+            return (f"[] or a list of numbers in [{number_text(self.low)}, "
+                    f"{number_text(self.high)}]")
         low = self.min_positive or self.low
         high = (number_text(high) if high is not None
                 else self.high_name or number_text(self.high))
@@ -95,22 +101,24 @@ class ParameterSpec:
                 raise ParameterError(self.name, f"text of {len(value)} characters is not "
                                                 f"accepted: {self.range_text()}, no NUL")
             return value
+        if isinstance(self.default, tuple):
+            return self._check_list(value)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ParameterError(self.name, f"expected a number [{self.unit}], got "
                                             f"{_short(value)}")
         unit = '' if self.unit == '-' else f" {self.unit}"
+        try:
+            number = real_number(value)
+        except NotANumber:   # an integer literal beyond the float range
+            raise ParameterError(self.name, f"{_short(value)}{unit} is beyond any float; "
+                                            f"accepted: {self.range_text(high)}") from None
         if isinstance(self.default, int):
             if isinstance(value, float) and not value.is_integer():
                 raise ParameterError(self.name, f"expected a whole number, got {value!r}")
-            if not self.contains(value):
+            if not self.contains(number):
                 raise ParameterError(self.name, f"{_short(value)}{unit} is outside "
                                                 f"{self.range_text(high)}")
             return int(value)
-        try:
-            number = float(value)
-        except OverflowError:   # an integer literal beyond the float range
-            raise ParameterError(self.name, f"{_short(value)}{unit} is beyond any float; "
-                                            f"accepted: {self.range_text(high)}") from None
         if math.isnan(number) or (math.isinf(number) and not (self.allow_inf and number > 0)):
             raise ParameterError(self.name, f"{number!r} is not a finite number [{self.unit}]; "
                                             f"accepted: {self.range_text(high)}")
@@ -118,6 +126,34 @@ class ParameterSpec:
             raise ParameterError(self.name, f"{number_text(number)}{unit} is outside "
                                             f"{self.range_text(high)}")
         return number
+
+
+    def _check_list(self, value):
+        """A list of numbers (a ROS double array) → a tuple of floats, each finite and in range.
+        None is the empty list (what ROS makes of ``[]`` in a params file: no type to infer)."""
+        if value is None:
+            return ()
+        if isinstance(value, array.array):   # what rclpy gives for a double array
+            value = value.tolist()
+        if not isinstance(value, (list, tuple)):
+            raise ParameterError(self.name, f"expected a list of numbers [{self.unit}] (e.g. "
+                                            f"[0, 3.14159]), got {_short(value)}")
+        if len(value) > 64:
+            raise ParameterError(self.name, f"a list of {len(value)} values is not accepted")
+        out = []
+        for i, item in enumerate(value):
+            if isinstance(item, bool) or not isinstance(item, (int, float)):
+                raise ParameterError(self.name, f"item {i} {_short(item)} is not a number")
+            try:
+                number = float(item)
+            except OverflowError:
+                number = math.inf
+            if not (math.isfinite(number) and self.low <= number <= self.high):
+                raise ParameterError(self.name, f"item {i} {_short(item)} {self.unit} is "
+                                                f"outside [{number_text(self.low)}, "
+                                                f"{number_text(self.high)}] (finite)")
+            out.append(number)
+        return tuple(out)
 
 
 def number_text(x):
@@ -192,6 +228,14 @@ PHYSICS_PARAMETERS = (
           choices=('full', 'rigid_shaft', 'averaged')),
     _spec('model.baumgarte', 200.0, '1/s', 'constraint stabilization rate of the paper formulation',
           low=0.0, high=1e6),
+    _spec('paths.count', 1, '-',
+          'N: crank-rocker paths on the one crank, each with its own one-way clutch on the '
+          'common driven member J3 (1 = the paper\'s machine; docs/physics.md §9)',
+          low=1.0, high=MAX_PATHS),
+    _spec('paths.phase_offsets', (), 'rad',
+          'phase offset of each path\'s crank: path k runs at φ1 + δ_k; N increasing values '
+          'within one turn; [] = 2π·(k − 1)/N',
+          low=-7.0, high=13.0),
     _spec('initial.crank_speed', 150.0, 'rad/s', 'crank speed ω1 at t = 0', low=-1e4, high=1e4),
     _spec('solver.method', 'dopri5', '-',
           'dopri5 (adaptive, event-located) | rk4 (fixed step, events located inside the step)',
@@ -259,6 +303,7 @@ NODE_PARAMETERS = (
 )
 
 SPECS = {s.name: s for s in PHYSICS_PARAMETERS + NODE_PARAMETERS}
+AVERAGED_MIN_SPEED = 1.0   # rad/s: slowest nominal crank speed of the averaged fidelity's map
 
 
 def register(*specs):
@@ -301,7 +346,56 @@ def validate(values):
     if out['model.formulation'] == 'paper' and out['inertia.rocker'] <= 0.0:
         raise ParameterError('inertia.rocker', 'the paper formulation needs J2 > 0 (it divides by '
                              'the rocker inertia); use model.formulation: reduced')
+    if out['model.fidelity'] == 'averaged' and out['motor.model'] == 'constant_speed' \
+            and not out['motor.speed'] >= AVERAGED_MIN_SPEED:
+        # (its ratio map is made of whole forward crank turns at the nominal speed)
+        raise ParameterError('motor.speed', f"{out['motor.speed']:g} rad/s: the averaged "
+                             f"fidelity needs a crank turning forward at ≥ "
+                             f"{AVERAGED_MIN_SPEED:g} rad/s; use model.fidelity: full")
+    _check_paths(out)
     return out
+
+
+# what the N-path machine does not do, with the reason (docs/physics.md §9)
+_ONE_PATH_ONLY = (
+    ('model.formulation', 'paper', "the paper's DAE (eqs. 9, 11) is written for one path; "
+     "N paths run the reduced formulation (model.formulation: reduced)"),
+    ('clutch.release', 'twist', "the paper's twist rule releases the one clutch the shaft "
+     "carries; with N paths the clutches share the twist, so each releases by its own torque "
+     "(clutch.release: torque)"),
+    ('model.fidelity', 'averaged', "the averaged model's ratio map is calibrated on one path; "
+     "run N paths with model.fidelity full or rigid_shaft"),
+)
+
+
+def _check_paths(values):
+    """paths.phase_offsets against paths.count; what N ≥ 2 does not support."""
+    n = values['paths.count']
+    offsets = values['paths.phase_offsets']
+    if offsets:
+        if len(offsets) != n:
+            raise ParameterError('paths.phase_offsets', f"{len(offsets)} values for "
+                                 f"paths.count = {n}: give one per path, or [] for 2π·(k − 1)/N")
+        for i in range(1, n):
+            if not offsets[i] > offsets[i - 1]:
+                raise ParameterError('paths.phase_offsets', f"values must increase: item {i} "
+                                     f"({offsets[i]!r}) is not above item {i - 1} "
+                                     f"({offsets[i - 1]!r})")
+        if offsets[-1] - offsets[0] >= 2.0 * math.pi:
+            raise ParameterError('paths.phase_offsets', f"the offsets span "
+                                 f"{offsets[-1] - offsets[0]!r} rad, not less than one turn "
+                                 f"(2π = {2.0 * math.pi!r} rad): two paths would coincide")
+    if n >= 2:
+        for name, value, reason in _ONE_PATH_ONLY:
+            if values[name] == value:
+                raise ParameterError(name, f"{value} is not available with paths.count = {n}: "
+                                           f"{reason}")
+
+
+def phase_offsets(values):
+    """Each path's phase offset δ_k [rad] of validated values (the default 2π·(k − 1)/N)."""
+    n = values['paths.count']
+    return tuple(values['paths.phase_offsets']) or tuple(2.0 * math.pi * k / n for k in range(n))
 
 
 def parameter_vector(values):

@@ -6,7 +6,6 @@ the ROS 2 parameter-file parser does. The top key names the node as ROS matches 
 is the node in the root namespace only, ``/**/cvt_sim`` the node in any namespace (the shipped
 scenes), ``/**`` every node.
 """
-import math
 import os
 import re
 import sys
@@ -14,7 +13,7 @@ from pathlib import Path
 
 from . import parameters
 from .physics.linkage import GrashofError
-from .yaml_file import InputFileError, is_file, parse_value, read_yaml
+from .yaml_file import InputFileError, is_file, numbers_in, parse_value, read_yaml
 
 NODE_NAME = 'cvt_sim'
 SCENES_DIR = Path(__file__).resolve().parent.parent / 'config' / 'scenes'
@@ -95,14 +94,7 @@ def _flatten(tree, prefix=''):
 
 def _yaml_number(value):
     # YAML 1.1 (PyYAML) reads '1e-3' (no dot) as a string; ROS's parser reads it as a double.
-    if isinstance(value, str):
-        try:
-            f = float(value)
-        except ValueError:
-            return value
-        if not math.isnan(f):
-            return f
-    return value
+    return numbers_in(value) if isinstance(value, str) else value
 
 
 def key_applies(key, fully_qualified_name):

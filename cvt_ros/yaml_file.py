@@ -41,27 +41,32 @@ class _StrictLoader(yaml.SafeLoader):
             self._depth -= 1
 
 
-def read_text(path, error=InputFileError):
-    """The text of a small UTF-8 regular file, or ``error`` (a subclass of InputFileError)."""
+def read_text(path, error=InputFileError, limit=MAX_BYTES, kind='a YAML file'):
+    """The text of a UTF-8 regular file of at most ``limit`` bytes, or ``error`` (a subclass of
+    InputFileError, or any exception class taking a message). A FIFO, a device (/dev/zero) or a
+    directory is refused before it is opened: no read that blocks or never ends."""
     path = Path(path)
     try:
         info = path.stat()
         if not stat.S_ISREG(info.st_mode):
-            raise error(f"{path}: not a regular file")
-        if info.st_size > MAX_BYTES:
-            raise error(f"{path}: {info.st_size} bytes, larger than an input file may be "
-                        f"({MAX_BYTES} bytes)")
+            raise error(f"{_shown(path)}: not a regular file")
+        if info.st_size > limit:
+            raise error(f"{_shown(path)}: {info.st_size} bytes, larger than an input file may be "
+                        f"({limit} bytes)")
         with open(path, 'rb') as f:
-            data = f.read(MAX_BYTES + 1)
-    except OSError as exc:
-        raise error(f"{_shown(path)}: cannot read: {exc.strerror or exc}") from None
-    if len(data) > MAX_BYTES:
-        raise error(f"{path}: larger than an input file may be ({MAX_BYTES} bytes)")
+            data = f.read(limit + 1)
+    except (OSError, ValueError) as exc:   # (ValueError: a NUL byte in the name)
+        if isinstance(exc, error):
+            raise
+        raise error(f"{_shown(path)}: cannot read: {getattr(exc, 'strerror', None) or exc}"
+                    ) from None
+    if len(data) > limit:
+        raise error(f"{_shown(path)}: larger than an input file may be ({limit} bytes)")
     try:
         return data.decode('utf-8')
     except UnicodeDecodeError as exc:
-        raise error(f"{path}: not UTF-8 text (byte {exc.start}: {data[exc.start:exc.start + 1]!r}"
-                    f"); is it a YAML file?") from None
+        raise error(f"{_shown(path)}: not UTF-8 text (byte {exc.start}: "
+                    f"{data[exc.start:exc.start + 1]!r}); is it {kind}?") from None
 
 
 def read_yaml(path, error=InputFileError):
@@ -71,6 +76,24 @@ def read_yaml(path, error=InputFileError):
         return yaml.load(text, Loader=_StrictLoader)   # noqa: S506 — a SafeLoader subclass
     except yaml.YAMLError as exc:
         raise error(f"{path}: not valid YAML: {' '.join(str(exc).split())}") from None
+
+
+def numbers_in(node, text_keys=()):
+    """``node`` with its number-like texts as floats: YAML 1.1 (PyYAML) reads 1e-3 and 1.0e5 (no
+    sign, or no dot) as text, ROS's parser and a person as numbers. Values under ``text_keys``
+    (names, paths, descriptions) stay as they are."""
+    if isinstance(node, dict):
+        return {k: v if k in text_keys else numbers_in(v, text_keys) for k, v in node.items()}
+    if isinstance(node, list):
+        return [numbers_in(v, text_keys) for v in node]
+    if isinstance(node, str):
+        try:
+            value = float(node)
+        except ValueError:
+            return node
+        if value == value:   # (not 'nan': text stays text)
+            return value
+    return node
 
 
 def parse_value(text):
@@ -96,5 +119,5 @@ def is_file(path):
         return False
 
 
-__all__ = ['InputFileError', 'MAX_BYTES', 'MAX_DEPTH', 'is_file', 'parse_value', 'read_text',
-           'read_yaml']
+__all__ = ['InputFileError', 'MAX_BYTES', 'MAX_DEPTH', 'is_file', 'numbers_in', 'parse_value',
+           'read_text', 'read_yaml']

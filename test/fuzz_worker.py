@@ -39,6 +39,10 @@ class Outcome:
             found.append(f'exit code {self.code}')
         if self.code == 0 and NON_FINITE.search(self.stdout):
             found.append(f'non-finite number printed with exit 0:\n{self.stdout}')
+        if self.code in (1, 2) and not self.stderr.strip() and not re.search(
+                r'warning|STOPPED|error', self.stdout):   # (cvt-sim run's warnings: stdout)
+            found.append(f'exit code {self.code} without a word on stderr (stdout: '
+                         f'{self.stdout[-500:]!r})')
         if self.code == 2 and len(self.stderr.strip().splitlines()) > 3:
             found.append(f'more than one error line:\n{self.stderr}')
         return found

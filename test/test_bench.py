@@ -70,8 +70,42 @@ def report(tmp_path_factory):
     tmp = tmp_path_factory.mktemp('bench')
     out = tmp / 'BENCHMARKS.md'
     out.write_text(FOREIGN)
-    assert bench.main(TINY + ['--out', str(out), '--plots', str(tmp / 'plots')]) == 0
+    assert bench.main(TINY + ['--write', str(out), '--plots', str(tmp / 'plots')]) == 0
     return out.read_text(), tmp
+
+
+def _targets(argv, now='20250101-000000'):
+    return bench.output_targets(bench.parse_args(argv), now=now)
+
+
+def test_without_an_output_option_bench_writes_a_new_report_not_the_published_one(
+        tmp_path, monkeypatch):
+    """Issue 34: `cvt-sim bench --quick` in the checkout rewrote BENCHMARKS.md and docs/plots;
+    the published files change only with --write."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / 'BENCHMARKS.md').write_text(FOREIGN)
+    (tmp_path / 'bench-20250101-000000.md').write_text('an earlier report')
+    out, plots, update = _targets(['--quick'])
+    assert (out, plots, update) == (bench.Path('bench-20250101-000000-2.md'),
+                                    bench.Path('bench-20250101-000000-2-plots'), False)
+    out, plots, update = _targets(['--write', 'BENCHMARKS.md'])
+    assert (out, plots, update) == (bench.Path('BENCHMARKS.md'), bench.Path('docs/plots'), True)
+
+
+@pytest.mark.parametrize('argv, reason', [
+    (['--out', 'BENCHMARKS.md'], 'exists (use --overwrite'),
+    (['--out', 'report.txt'], '.md file'),
+    (['--out', 'no/such/folder/report.md'], 'no such directory'),
+    (['--write', 'BENCHMARKS.md', '--plots', 'BENCHMARKS.md'], 'not a directory'),
+])
+def test_a_target_bench_cannot_use_is_refused_before_any_work(tmp_path, monkeypatch, capsys,
+                                                              argv, reason):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / 'BENCHMARKS.md').write_text(FOREIGN)
+    assert bench.main(TINY + argv) == 2
+    assert reason in capsys.readouterr().err
+    assert (tmp_path / 'BENCHMARKS.md').read_text() == FOREIGN
+    assert sorted(p.name for p in tmp_path.iterdir()) == ['BENCHMARKS.md']
 
 
 def test_report_states_command_machine_and_versions(report):

@@ -11,6 +11,7 @@ import math
 import os
 
 import pytest
+from fuzz_strategies import mutate, number_texts
 from fuzz_worker import Worker, scaled_budget
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
@@ -50,21 +51,6 @@ def check(worker, argv):
     return outcome
 
 
-# values a hostile or careless user types: edges of every range, beyond the float range, denormals,
-# non-numbers, and plain numbers across 600 decades
-EXTREMES = ['0', '-0', '1e-320', '5e-324', '-1e-300', '1e300', '1e308', '-1e308', '1e309', '.inf',
-            '-.inf', '.nan', 'nan', '1' + '0' * 400, '-' + '9' * 400, 'true', '[1, 2]', '{a: 1}',
-            '0x10', '1_000', '"1"', '', 'abc', '1e', '--1']
-
-
-def number_texts():
-    return st.one_of(
-        st.sampled_from(EXTREMES),
-        st.floats(allow_nan=True, allow_infinity=True).map(repr),
-        st.floats(-330, 308).map(lambda e: f"{10.0 ** e if e < 308 else 1e308:.6g}"),
-        st.integers(-10 ** 30, 10 ** 30).map(str))
-
-
 @FUZZ
 @given(name=st.sampled_from(NUMERIC), value=number_texts())
 def test_any_parameter_value_is_a_result_or_one_clear_error(worker, name, value):
@@ -91,19 +77,7 @@ def test_any_duration_and_sample_interval(worker, duration, sample_dt):
 @FUZZ
 @given(data=st.data())
 def test_mutated_scene_files(worker, tmp_path_factory, data):
-    original = bytearray(resolve('conveyor').read_bytes())
-    edits = data.draw(st.lists(st.tuples(st.integers(0, len(original) - 1),
-                                         st.sampled_from(['flip', 'delete', 'insert'])),
-                               min_size=1, max_size=8))
-    content = bytearray(original)
-    for position, kind in edits:
-        position = min(position, len(content) - 1)
-        if kind == 'flip':
-            content[position] ^= 1 << data.draw(st.integers(0, 7))
-        elif kind == 'delete':
-            del content[position]
-        else:
-            content[position:position] = data.draw(st.binary(min_size=1, max_size=4))
+    content = mutate(data.draw, resolve('conveyor').read_bytes())
     path = tmp_path_factory.mktemp('scene') / 'mutated.yaml'
     path.write_bytes(bytes(content))
     check(worker, ['run', str(path), '--duration', '0.05', '--sample-dt', '0.01', '--quiet'])

@@ -2,8 +2,8 @@
 
 Layers, lowest first (docs/architecture.md draws them):
 
-    physics < parameters, scene, yaml_file < solver < interface < recording < analysis
-    < device < control, scenario < testing, sweep < bench, cli
+    physics < numbers, parameters, scene, yaml_file < solver < interface < recording < analysis
+    < device < control, scenario < testing, sweep < design < bench, cli
 
 A module may import its own layer and the layers below it, never one above; no two modules
 import each other, directly or around a circle (imports inside functions count: a circle that
@@ -20,7 +20,7 @@ PACKAGE = Path(__file__).resolve().parent.parent / 'cvt_ros'
 
 LAYERS = [
     ('physics',),
-    ('parameters', 'scene', 'yaml_file'),
+    ('numbers', 'parameters', 'scene', 'yaml_file'),
     ('solver',),
     ('interface',),
     ('recording',),
@@ -28,6 +28,7 @@ LAYERS = [
     ('device',),
     ('control', 'scenario'),
     ('testing', 'sweep'),
+    ('design',),
     ('bench', 'cli', '__main__'),
 ]
 RANK = {room: rank for rank, rooms in enumerate(LAYERS) for room in rooms}

@@ -23,6 +23,8 @@ MODULE_KEYS = {
     'dask': 'python3-dask-distributed-pip', 'distributed': 'python3-dask-distributed-pip',
     'pyarrow': 'python3-pyarrow-pip',
     'sksundae': 'python3-scikit-sundae-pip',
+    'control': 'python3-control-pip', 'pythonfmu': 'python3-pythonfmu-pip',
+    'fmpy': 'python3-fmpy-pip',
 }
 ROS_PACKAGES = {'rclpy', 'rcl_interfaces', 'std_msgs', 'sensor_msgs', 'std_srvs', 'rosgraph_msgs',
                 'diagnostic_msgs', 'geometry_msgs', 'visualization_msgs', 'builtin_interfaces',

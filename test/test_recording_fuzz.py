@@ -49,20 +49,27 @@ def original(tmp_path_factory):
     """0.15 s of the paper scene at 1 ms with two commands, in 2 KiB chunks: (bytes, its
     messages as a multiset)."""
     path = tmp_path_factory.mktemp('fuzz') / 'base.mcap'
-    sim = Simulator(load_scene('paper'))
-    with SimulationRecorder(path, parameters=sim.values, scene='paper', source='fuzz',
-                            chunk_size=2048, flush_interval=None) as rec:
+    _record(path, 'paper', 2048, 150, commands=(40, 90))
+    return path.read_bytes(), collections.Counter(_messages(path))
+
+
+def _record(path, scene, chunk_size, periods, commands=()):
+    """``periods`` ms of ``scene`` recorded in chunks of ``chunk_size`` bytes; a crank-length
+    command at each period of ``commands`` (0.035 m at the first, 0.03 m after)."""
+    sim = Simulator(load_scene(scene))
+    with SimulationRecorder(path, parameters=sim.values, scene=scene, source='fuzz',
+                            chunk_size=chunk_size, flush_interval=None) as rec:
         rec.record_clutch_state(sim.engaged, 0.0)
         rec.record_sample(sim.sample())
-        for i in range(150):
-            if i in (40, 90):
-                rec.record_command('crank_length_cmd', 0.03 + 0.005 * (i == 40), sim.t)
-                sim.command_crank_length(0.03 + 0.005 * (i == 40))
+        for i in range(periods):
+            if i in commands:
+                a = 0.03 + 0.005 * (i == commands[0])
+                rec.record_command('crank_length_cmd', a, sim.t)
+                sim.command_crank_length(a)
             for sw in sim.advance(1e-3):
                 rec.record_switch(sw)
             rec.record_sample(sim.sample())
             rec.record_clock(sim.t)
-    return path.read_bytes(), collections.Counter(_messages(path))
 
 
 def _messages(path):
@@ -182,6 +189,42 @@ def test_damaged_recordings_are_replayed_or_refused(worker, original, tmp_path_f
     path = tmp_path_factory.mktemp('replay') / 'bad.mcap'
     path.write_bytes(data.draw(mutated(base)))
     check(worker, ['replay', path, '--rate', '1000', '--delay', '0'])
+
+
+@pytest.fixture(scope='module')
+def chunked(tmp_path_factory):
+    """1.5 s of the conveyor scene in 8 KiB chunks (~40): (bytes, [(start, end)] of the chunks
+    between the first and the last)."""
+    path = tmp_path_factory.mktemp('fuzz') / 'long.mcap'
+    _record(path, 'conveyor', 8192, 1500)
+    data = path.read_bytes()
+    with open(path, 'rb') as f:
+        chunks = make_reader(f).get_summary().chunk_indexes
+    inner = [(c.chunk_start_offset, c.chunk_start_offset + c.chunk_length) for c in chunks][1:-1]
+    assert len(inner) > 10
+    return data, inner
+
+
+@FUZZ
+@given(data=st.data())
+def test_one_damaged_chunk_leaves_the_rest_analysed(worker, chunked, tmp_path_factory, data):
+    """Issue 34: one flipped bit in one chunk made analyze exit 2 with no result ("the crank
+    turns more than once between two samples" across the skipped chunk). What is intact is
+    analysed; what was skipped, and why, is said; the exit code is 1."""
+    base, chunks = chunked
+    start, end = data.draw(st.sampled_from(chunks))
+    bad = bytearray(base)
+    flips = data.draw(st.lists(st.tuples(st.integers(start + 64, end - 1), st.integers(0, 7)),
+                               min_size=1, max_size=3, unique=True))   # (two alike: no flip)
+    for at, bit in flips:   # in the chunk's records, past its header
+        bad[at] ^= 1 << bit
+    path = tmp_path_factory.mktemp('chunk') / 'bad.mcap'
+    path.write_bytes(bytes(bad))
+    outcome = check(worker, ['analyze', path, '--cycles', '0'])
+    CASES['one chunk damaged: analyze exit ' + str(outcome.code)] += 1
+    assert outcome.code == 1 and 'run 1:' in outcome.stdout, outcome.stdout + outcome.stderr
+    assert 'skipped' in outcome.stderr and 'the results above cover the readable part' in \
+        outcome.stderr
 
 
 @pytest.mark.parametrize('content', [

@@ -21,6 +21,9 @@ from ..physics.linkage import GrashofError, check_crank_length
 from .errors import AnalysisError
 from .trace import Command, RecordingInfo, Trace
 
+#: the set point of a controller-kit recording (``cvt-sim scenario run --mcap``; std_msgs/Float64)
+SETPOINT_TOPIC = '/setpoint'
+
 __all__ = ['load_mcap']
 
 
@@ -29,6 +32,7 @@ __all__ = ['load_mcap']
 ACTUATOR_JOINT = 'crank_length'
 #: More runs than this (simulation time going back again and again) is no recording of a node.
 MAX_RUNS = 1000
+GAP_FACTOR = 4.0   # a damaged file: a hole of more than this many sample intervals splits a run
 
 
 @dataclass(frozen=True)
@@ -251,10 +255,18 @@ def load_mcap(path: str, *, namespace: str | None = None
     js_data: list[bytes] = []
     js_log: list[int] = []
     events: list[tuple[str, int, int, bytes]] = []
+    setpoint: list[tuple[float, float]] = []   # a controller-kit run's set point (sim time)
+    if info.topics.get(SETPOINT_TOPIC, ('',))[0] == 'std_msgs/msg/Float64':
+        keys[SETPOINT_TOPIC] = 'setpoint'
     try:
         for m in read_messages(path, topics=list(keys)):
             key = keys[m.topic]
-            if key == 'joint_states':
+            if key == 'setpoint':
+                value = _event_value(key, m.data)
+                if value is not None:
+                    setpoint.append(((m.publish_time_ns if ours else m.log_time_ns) * 1e-9,
+                                     value))
+            elif key == 'joint_states':
                 js_data.append(m.data)
                 js_log.append(m.log_time_ns)
             elif key in ('clutch_engaged', 'crank_length_cmd', 'load_torque_cmd',
@@ -289,6 +301,10 @@ def load_mcap(path: str, *, namespace: str | None = None
     traces = _split_runs(path, samples, events, parameters, ours, info, changes)
     for trace in traces:
         trace.notes[:0] = notes
+        # the set point in force over the run: the last value before it and the changes in it
+        inside = [p for p in setpoint if trace.t[0] < p[0] <= trace.t[-1]]
+        before = [p for p in setpoint if p[0] <= trace.t[0]]
+        trace.setpoint = before[-1:] + inside
     return traces, info
 
 
@@ -363,7 +379,15 @@ def _split_runs(path: str, samples: _Samples, events: list, parameters: dict | N
         keep[dup] = False
         samples = samples.take(keep)
         stamps = samples.stamps
-    cuts = np.flatnonzero(np.diff(stamps) < 0) + 1
+    steps = np.diff(stamps)
+    cuts = np.flatnonzero(steps < 0) + 1
+    gaps = set()
+    if info.problems and np.any(steps > 0):
+        # a damaged file's skipped chunk leaves a hole in the samples: the crank may turn
+        # several times across it. The intact stretches on either side are analysed apart
+        typical = float(np.median(steps[steps > 0]))
+        gaps = set((np.flatnonzero(steps > GAP_FACTOR * typical) + 1).tolist())
+        cuts = np.union1d(cuts, sorted(gaps)).astype(int)
     bounds = [0, *cuts.tolist(), len(stamps)]
     if len(bounds) - 1 > MAX_RUNS:
         info.problems.append(f'simulation time goes back {len(cuts)} times: not the recording '
@@ -437,6 +461,10 @@ def _split_runs(path: str, samples: _Samples, events: list, parameters: dict | N
             initial = bool(switch_on_arr[head][-1])
             switch_t_arr, switch_on_arr = switch_t_arr[~head], switch_on_arr[~head]
         notes = []
+        if lo in gaps:
+            notes.append(f'samples lost before this part (a damaged chunk of the file was '
+                         f'skipped): none from t = {stamps[lo - 1] * 1e-9:.6f} s to '
+                         f'{t[0]:.6f} s')
         if refused:
             notes.append(f'{refused} command(s) outside the node\'s limits (refused by it) left '
                          f'out')

@@ -101,18 +101,22 @@ def step_metrics(trace: Trace, reference_t: np.ndarray, reference: np.ndarray,
 
 
 def _window(trace, tm, t_start, t_end, y, r_mid, ref_t, ref, a, tc, ev, t_e):
+    # the samples, switches and cycles of the window found by bisection (times increase, as a
+    # run's do): one step costs its own window, not the whole run (5000 steps over a long run)
     m = dict.fromkeys(METRICS, math.nan)
-    inside = (t_start >= ev.t) & (t_end <= t_e)
-    samples = (trace.t >= ev.t) & (trace.t <= t_e)
+    s0 = np.searchsorted(trace.t, ev.t, side='left')
+    s1 = np.searchsorted(trace.t, t_e, side='right')
     span = t_e - ev.t
-    if np.any(samples):
-        m['peak_clutch_torque'] = float(np.nanmax(tc[samples]))
-        aw = a[samples]
+    if s1 > s0:
+        m['peak_clutch_torque'] = float(np.nanmax(tc[s0:s1]))
+        aw = a[s0:s1]
         m['crank_travel'] = float(np.nansum(np.abs(np.diff(aw)))) if len(aw) > 1 else 0.0
     if span > 0:
-        n_sw = np.count_nonzero((trace.switch_t > ev.t) & (trace.switch_t <= t_e))
-        m['switches_per_second'] = int(n_sw) / span
-    idx = np.flatnonzero(inside)
+        n_sw = (np.searchsorted(trace.switch_t, t_e, side='right')
+                - np.searchsorted(trace.switch_t, ev.t, side='right'))
+        m['switches_per_second'] = max(int(n_sw), 0) / span
+    c0 = int(np.searchsorted(t_start, ev.t, side='left'))
+    idx = np.arange(c0, max(c0, int(np.searchsorted(t_end, t_e, side='right'))))
     if not len(idx):
         return m
     yw, tw = y[idx], tm[idx]
@@ -127,8 +131,8 @@ def _window(trace, tm, t_start, t_end, y, r_mid, ref_t, ref, a, tc, ev, t_e):
     n_ss = max(MIN_STEADY_CYCLES, int(math.ceil(STEADY_FRACTION * len(idx))))
     if len(idx) >= n_ss:
         m['steady_state_error'] = float(rf - np.mean(yw[-n_ss:]))
-    before = np.flatnonzero(t_end <= ev.t)
-    y0 = float(y[before[-1]]) if len(before) and ev.kind != 'start' else \
+    before = int(np.searchsorted(t_end, ev.t, side='right'))   # cycles ended by the step
+    y0 = float(y[before - 1]) if before and ev.kind != 'start' else \
         float(np.interp(ev.t, trace.t, trace.omega[:, 3]))
     delta = rf - y0
     tracking = ev.kind in ('start', 'setpoint')

@@ -1,10 +1,15 @@
-"""``cvt-sim bench`` (``./run.sh bench``): the core benchmarks into BENCHMARKS.md and docs/plots.
+"""``cvt-sim bench`` (``./run.sh bench``): the core benchmarks into a report of their own
+(``bench-DATE.md`` and its plots, or ``--out FILE``); ``--write BENCHMARKS.md`` updates the
+published report and docs/plots in place, and nothing else does.
 
 ``cvt-sim bench [OPTIONS]`` runs the sections (work-precision and the defaults, hard cases, the
 RK4 stability limit, the long run, the known-defect checks); ``cvt-sim bench node ARGS`` the ROS
 node's benchmark (cvt_ros.bench.node); ``cvt-sim bench fidelity ARGS`` the fidelity table;
 ``cvt-sim bench sweep ARGS`` the Dask campaign benchmark (cvt_ros.bench.sweep); ``cvt-sim bench
-profile ARGS`` where the core's time goes at steady state (Linux perf, cvt_ros.bench.profile).
+design ARGS`` the design tools (cvt_ros.bench.design); ``cvt-sim bench
+profile ARGS`` where the core's time goes at steady state (Linux perf, cvt_ros.bench.profile);
+``cvt-sim bench paths`` what N paths cost (cvt_ros.bench.paths);
+``cvt-sim bench compile ARGS`` what compiling the kernels costs a first run (cvt_ros.bench.compile).
 """
 import argparse
 import importlib
@@ -51,7 +56,8 @@ from .work_precision import (
 )
 
 SECTIONS = ('work', 'steady', 'scaling', 'events', 'hard', 'stability', 'long', 'defects')
-SUBCOMMANDS = ('node', 'fidelity', 'sweep', 'profile')   # modules with their own main(argv)
+# modules with their own main(argv)
+SUBCOMMANDS = ('node', 'fidelity', 'sweep', 'profile', 'design', 'paths', 'compile')
 
 
 def page(cfg, env, parts, plots, command, wall_total):
@@ -168,10 +174,21 @@ def parse_args(argv):
                'other benchmarks: cvt-sim bench node --help (the ROS node), '
                'cvt-sim bench fidelity --help (each fidelity against the full model), '
                'cvt-sim bench sweep --help (Dask campaigns), '
-               'cvt-sim bench profile --help (a perf profile of the steady-state runs)')
+               'cvt-sim bench profile --help (a perf profile of the steady-state runs), '
+               'cvt-sim bench compile --help (the first run\'s kernel compilation)')
     ap.add_argument('--quick', action='store_true', help='CI-sized: short spans, fewer points')
-    ap.add_argument('--out', default='BENCHMARKS.md', help='markdown report (default %(default)s)')
-    ap.add_argument('--plots', default='docs/plots', help='PNG directory (default %(default)s)')
+    where = ap.add_mutually_exclusive_group()
+    where.add_argument('--out', metavar='FILE',
+                       help='write the report to this new file (an existing one only with '
+                            '--overwrite; default: a new bench-DATE.md in this folder)')
+    where.add_argument('--write', metavar='FILE',
+                       help='update the sections this benchmark owns in FILE, in place, '
+                            'keeping the others (the published report: --write BENCHMARKS.md; '
+                            'its plots go to docs/plots beside it)')
+    ap.add_argument('--overwrite', action='store_true', help='replace an existing --out file')
+    ap.add_argument('--plots', metavar='DIR',
+                    help='PNG directory (default: docs/plots beside a --write file, else '
+                         'REPORT-plots/ beside the report)')
     ap.add_argument('--scenes', nargs='+', default=None, metavar='SCENE',
                     help=f"work-precision scenes (default {' '.join(SCENES)})")
     ap.add_argument('--methods', nargs='+', default=None, choices=list(METHOD_BY_KEY),
@@ -242,11 +259,46 @@ def make_config(a):
         sweep_span=a.sweep_span or (1.0 if q else 5.0))
 
 
+def output_targets(a, now=None):
+    """(report file, plots folder, update in place?) of a run: ``--write FILE`` updates FILE
+    (the published BENCHMARKS.md changes only when asked so); ``--out FILE`` writes a new
+    report (an existing FILE only with --overwrite); neither: a new ``bench-DATE.md`` in the
+    current folder. Raises OutputError before any work for a target that cannot be written."""
+    from ..recording import OutputError, OutputFiles
+    if a.write:
+        out = Path(a.write)
+        plots = Path(a.plots) if a.plots else out.parent / 'docs' / 'plots'
+    else:
+        if a.out:
+            out = Path(a.out)
+        else:
+            stamp = (now or time.strftime('%Y%m%d-%H%M%S'))
+            out = Path(f'bench-{stamp}.md')
+            for k in range(2, 1000):    # a new file: never one that is there
+                if not os.path.lexists(out) and not os.path.lexists(f'{out.stem}-plots'):
+                    break
+                out = Path(f'bench-{stamp}-{k}.md')
+        plots = Path(a.plots) if a.plots else out.with_name(f'{out.stem}-plots')
+    targets = OutputFiles()
+    targets.check(out, overwrite=bool(a.write or a.overwrite), suffixes=('.md',))
+    if plots.exists():
+        targets.check(plots, directory=True)
+    if not a.write and plots.exists() and any(plots.iterdir()) and not (a.plots or a.overwrite):
+        raise OutputError(f'{plots}: exists and is not empty (--plots DIR, or --overwrite)')
+    return out, plots, bool(a.write)
+
+
 def main(argv=None):
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] in SUBCOMMANDS:  # a benchmark with its own parser takes the rest
         return importlib.import_module(f'.{argv[0]}', __package__).main(argv[1:])
     a = parse_args(argv)
+    from ..recording import OutputError
+    try:   # every target before an hour of benchmarks, not after
+        out, plot_dir, update = output_targets(a)
+    except OutputError as exc:
+        print(f'cvt-sim bench: error: {exc}', file=sys.stderr)
+        return 2
     cfg = make_config(a)
 
     def log(msg):
@@ -276,12 +328,11 @@ def main(argv=None):
         parts['long'] = long_run(cfg, log)
     if 'defects' in a.sections:
         parts['defects'] = known_defects(log)
-    out = Path(a.out)
-    plots = plot_all(parts['work'], parts['stability'], parts['default'], a.plots, cfg)
+    plots = plot_all(parts['work'], parts['stability'], parts['default'], plot_dir, cfg)
     rel = {k: os.path.relpath(v, out.resolve().parent) for k, v in plots.items()}
     command = 'cvt-sim bench' + (' ' + ' '.join(argv) if argv else '')
     text = page(cfg, env, parts, rel, command, time.perf_counter() - t0)
-    write_report(out, text)
-    log(f"wrote {out} and {len(plots)} plots in {a.plots} "
+    write_report(out, text, keep_others=update)
+    log(f"wrote {out} and {len(plots)} plots in {plot_dir} "
         f"({(time.perf_counter() - t0) / 60:.1f} min)")
     return 0

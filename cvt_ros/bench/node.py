@@ -122,16 +122,18 @@ class Busy:
 
 
 # ------------------------------------------------------------------ in process
-def inprocess(seconds, fidelity='full', method='rk4'):
+def inprocess(seconds, fidelity='full', method='rk4', paths=1):
     """Lockstep with a Python PI controller, no DDS: Device.command_crank_length +
-    Device.advance_row per period, as the controller kit's in-process back end does."""
+    Device.advance_row per period, as the controller kit's in-process back end does
+    (``paths``: the conveyor's paths.count)."""
     from ..device.core import Device
     from ..scene import load_scene
     from ..solver import advance_layout as AL
     from ..solver import hybrid
     from ..solver.output import COL
 
-    values = load_scene('conveyor', {'solver.method': method, 'model.fidelity': fidelity})
+    values = load_scene('conveyor', {'solver.method': method, 'model.fidelity': fidelity,
+                                     'paths.count': paths})
     dt = 1e-3
     w4 = COL['omega4']
     device = Device(values, dt)
@@ -160,7 +162,7 @@ def inprocess(seconds, fidelity='full', method='rk4'):
     for _ in range(k):
         stepper.advance()
     pieces['period: one compiled advance-and-sample call'] = (time.perf_counter() - t0) / k
-    if fidelity != 'averaged':
+    if fidelity != 'averaged' and sim.n_paths == 1:
         args = (sim.y, sim.ms, sim.P, sim.ACT, sim.LIN, sim.S, sim.h_io, sim._empty_grid,
                 sim._empty_out, sim._events_buf, sim.counters, sim.ledger, sim._scratch)
         steps0, rhs0 = int(sim.counters[AL.C_STEPS]), int(sim.counters[AL.C_RHS])

@@ -97,18 +97,28 @@ def _own(head):
     return head.startswith('## ') and title.startswith(OWN_SECTIONS)
 
 
-def write_report(path, text):
-    """Write our sections first, then every section of the existing file we did not write (the
-    ROS node's, the recording's, …), unchanged and in their order."""
+def write_report(path, text, keep_others=True):
+    """Write our sections first, then (``keep_others``) every section of the existing file we
+    did not write (the ROS node's, the recording's, …), unchanged and in their order."""
     path = Path(path)
     kept = []
-    if path.exists():
+    if keep_others and path.exists():
         kept = [body for head, body in _blocks(path.read_text()) if not _own(head)]
     out = text
     if kept:
         out = out.rstrip() + '\n\n' + ''.join(kept).lstrip('\n')
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(out if out.endswith('\n') else out + '\n')
+
+
+def publish(text, out, title, log):
+    """Print a benchmark's section and put it into the markdown file ``out`` (None or '-':
+    print only) in place of the section ``title``; the exit code 0."""
+    print(text)
+    if out and out != '-':
+        replace_section(out, title, text)
+        log(f"wrote the section to {out}")
+    return 0
 
 
 def replace_section(path, title, text):

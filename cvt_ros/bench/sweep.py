@@ -1,6 +1,7 @@
 """``cvt-sim bench sweep`` (``./run.sh bench sweep``): a campaign of short cases on Dask
 LocalClusters of 1 and 2 single-threaded workers — the speed-up, the scheduling overhead per
-case and the workers' memory over the campaign — into BENCHMARKS.md (section "Sweeps").
+case and the workers' memory over the campaign — printed, and with ``--write BENCHMARKS.md``
+put there (section "Sweeps").
 
 Method. The same campaign (``--cases`` cases of the conveyor scene, ``--duration`` s simulated
 each, the load torque varied) runs on a 1-worker cluster, a 2-worker cluster, and the 1-worker
@@ -20,7 +21,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from .report import ROOT, environment, fmt, replace_section, table
+from .report import environment, fmt, publish, table
 
 TITLE = '## Sweeps (Dask campaigns)'
 
@@ -110,7 +111,7 @@ def section(cfg, env, one_a, two, one_b, rss0, command, load_end):
           f"to the end of the last):", '']
     L += table(header, rows)
     L += ['', 'Reproduce: `./run.sh bench sweep` (options: `--cases`, `--duration`, `--rounds`; '
-              '`--out -` prints the section only).', '']
+              '`--write BENCHMARKS.md` puts the section there).', '']
     return '\n'.join(L)
 
 
@@ -124,8 +125,9 @@ def main(argv=None):
     ap.add_argument('--rounds', type=int, default=3,
                     help='runs of the campaign on the 2-worker cluster, for the memory '
                          '(default %(default)s)')
-    ap.add_argument('--out', default=str(ROOT / 'BENCHMARKS.md'),
-                    help="markdown file whose sweep section is replaced ('-': print only)")
+    ap.add_argument('--write', '--out', metavar='FILE', dest='out',
+                    help="put the section into FILE, e.g. BENCHMARKS.md (default: print it "
+                         "only)")
     cfg = ap.parse_args(argv)
     from ..sweep.campaign import load_campaign
 
@@ -142,11 +144,7 @@ def main(argv=None):
         _, (one_b,) = measure(campaign, 1, 1, folder, log)
     command = './run.sh bench sweep' + (' ' + ' '.join(argv) if argv else '')
     text = section(cfg, env, one_a, two, one_b, rss0, command, os.getloadavg()[0])
-    print(text)
-    if cfg.out != '-':
-        replace_section(cfg.out, TITLE, text)
-        log(f"wrote the section to {cfg.out}")
-    return 0
+    return publish(text, cfg.out, TITLE, log)
 
 
 if __name__ == '__main__':

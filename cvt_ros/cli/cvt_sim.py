@@ -13,7 +13,7 @@ from ..physics.linkage import GrashofError
 from ..recording.errors import RecordingError
 from ..scene import SceneError, available_scenes
 from ..solver.simulator import SimulationError
-from . import demo, recording, run, scenario, sweep
+from . import demo, design, recording, run, scenario, sweep
 from .arguments import Parser
 
 DESCRIPTION = """\
@@ -50,6 +50,7 @@ def build_parser():
     scenario.add_parser(sub)   # cvt-sim scenario run|list (controller tests)
 
     sweep.add_parser(sub)   # cvt-sim sweep CAMPAIGN --out DIR (campaigns on Dask)
+    design.add_parsers(sub)   # cvt-sim identify | tune | fmu (design a controller)
     demo.add_parser(sub)
 
     node = sub.add_parser('node', add_help=False,

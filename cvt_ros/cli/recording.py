@@ -207,13 +207,18 @@ def analyze_command(args: Any) -> int:
         return 2
     try:
         traces, info = load(args.file, scene=args.scene, namespace=args.namespace)
-        analyses = []
+        analyses, failed = [], []
         for trace in traces:
             try:
                 analyses.append(analyze_trace(trace, tolerance=args.steady_tol,
                                               min_cycles=args.steady_cycles))
             except AnalysisError as exc:
-                raise AnalysisError(f'run {trace.run_index + 1}: {exc}') from None
+                failed.append(f'run {trace.run_index + 1} (t = {trace.t[0]:.6g} … '
+                              f'{trace.t[-1]:.6g} s): not analysed: {exc}')
+        if failed and (not analyses or not info.problems):
+            raise AnalysisError(failed[0])   # (an intact file: one run it cannot analyse)
+        # a damaged file: the parts that can be analysed are, the others are named
+        info.problems.extend(failed)
     except AnalysisError as exc:
         _error('analyze', str(exc))
         return 2
@@ -227,7 +232,9 @@ def analyze_command(args: Any) -> int:
         print('topics           ' + ', '.join(f'{name} ({count})'
                                               for name, (_, count) in sorted(info.topics.items())))
     if len(analyses) > 1:
-        print(f'runs             {len(analyses)} (simulation time went back: ~/reset)')
+        print(f'runs             {len(analyses)} (simulation time went back: ~/reset'
+              + ('; or samples lost in a damaged part of the file: see each run\'s notes)'
+                 if info.problems else ')'))
     for analysis in analyses:
         print(format_run(analysis, cycles))
     written = []
@@ -254,7 +261,8 @@ def analyze_command(args: Any) -> int:
     for line in written:
         print(line)
     if info.problems:
-        _error('analyze', f'{args.file}: {info.problems[0]}'
+        first = info.problems[0]
+        _error('analyze', (first if first.startswith(args.file) else f'{args.file}: {first}')
                + (f' (+{len(info.problems) - 1} more)' if len(info.problems) > 1 else '')
                + '; the results above cover the readable part')
         return 1

@@ -13,6 +13,7 @@ from ..physics.linkage import grashof_bound
 from ..scene import available_scenes, load_scene, parse_override, resolve
 from ..solver.fidelity import choose_fidelity
 from ..solver.offline import CsvWriter, SampleStatistics, simulator_for, summarize, tail_start
+from ..solver.output import path_columns
 from .arguments import positive_float, positive_seconds
 
 # Bounds on what one run may ask for: beyond them it would run for years or fill the disk.
@@ -114,6 +115,11 @@ def format_summary(summary, scene, fidelity='full'):
         f"{s['peak_twist_rad']:.6f} rad (whole run)" if fidelity != 'averaged' else
         f"peaks            n/a: the averaged model follows cycle means (its largest clutch "
         f"torque, a cycle mean: {s['peak_clutch_torque_Nm']:.4f} N·m); impacts: --fidelity full",
+        *([] if 'switches_per_path' not in s or fidelity == 'averaged' else [
+            f"paths            {len(s['switches_per_path'])}: switches "
+            f"{', '.join(str(c) for c in s['switches_per_path'])}; peak clutch torque "
+            f"{', '.join(f'{x:.4f}' for x in s['peak_clutch_torque_per_path_Nm'])} N·m "
+            f"(path 1 … {len(s['switches_per_path'])})"]),
         f"energy balance   residual {s['energy_residual_J']:.3e} J = "
         f"{s['energy_residual_relative']:.2e} of the work done",
         f"solver           {s['steps']} steps, {s['rejected_steps']} rejected"
@@ -170,19 +176,21 @@ def run_command(args):
               f"raise --sample-dt", file=sys.stderr)
         return 2
     overrides, origins = overrides_from(args.set)
-    load_scene(args.scene, overrides, origins)   # every input error before any work
+    values = load_scene(args.scene, overrides, origins)   # every input error before any work
+    columns = path_columns(values['paths.count'])
     pick_fidelity(args, overrides, origins)
     # refuse a target that cannot be written before a long run, not after it
+    from ..recording import OutputFiles
+    from ..scene import resolve
+    targets = OutputFiles(inputs=[str(resolve(args.scene))])
     if args.csv:   # (replaced if it exists, as export's and analyze's outputs are)
-        from ..recording import OutputFiles
-        targets = OutputFiles()
         for path in (args.mcap, args.csv):
             if path:
                 targets.check(path)
     if args.mcap:
         from ..recording.recorder import check_target
         check_target(args.mcap, args.overwrite)
-    statistics = SampleStatistics(tail_start(0.0, args.duration))
+    statistics = SampleStatistics(tail_start(0.0, args.duration), columns)
     sinks = [statistics.add]
     writing = [0.0]   # wall time spent in the sinks (CSV), not in the simulation
 
@@ -191,17 +199,22 @@ def run_command(args):
         for sink in sinks:
             sink(block)
         writing[0] += time.perf_counter() - t0
-    with contextlib.ExitStack() as stack:
-        if args.csv:
-            csv = stack.enter_context(CsvWriter(args.csv))
-            sinks.append(csv.add)
-        sim = simulator_for(args.scene, overrides, origins)
-        update = None
-        if not args.quiet:   # after the kernels are loaded: the bar's 2 s delay is the run's
-            bar, update = progress_bar(args.duration)
-            stack.callback(bar.close)
-        result = sim.run(args.duration, args.sample_dt, progress=update, on_samples=on_samples,
-                         keep_samples=bool(args.mcap))
+    try:   # the CSV goes to a temporary file renamed at the end: whole, or not at all
+        with targets, contextlib.ExitStack() as stack:
+            if args.csv:
+                csv = stack.enter_context(CsvWriter(targets.temp_path(args.csv), columns))
+                sinks.append(csv.add)
+            sim = simulator_for(args.scene, overrides, origins)
+            update = None
+            if not args.quiet:   # after the kernels are loaded: the bar's delay is the run's
+                bar, update = progress_bar(args.duration)
+                stack.callback(bar.close)
+            result = sim.run(args.duration, args.sample_dt, progress=update,
+                             on_samples=on_samples, keep_samples=bool(args.mcap))
+    except OSError as exc:   # (disk full, quota, I/O error while the CSV streams)
+        if not args.csv:
+            raise
+        raise targets.error(args.csv, exc) from None
     result.wall_time = max(result.wall_time - writing[0], 0.0)   # the simulation's own time
     summary = summarize(result, args.duration, statistics)
     print(format_summary(summary, args.scene, sim.values['model.fidelity']))
@@ -236,7 +249,8 @@ def params_command(args):
         if not args.markdown:
             print(f"# {REALTIME_SOLVER_WHY}")
             if values['solver.method'] == 'rk4':
-                print(f"# this scene in realtime: {fixed_step(values)[2]}")
+                print(f"# this scene in realtime: "
+                      f"{fixed_step(values, values['paths.count'] > 1)[2]}")
     else:
         values = load_scene(args.scene) if args.scene else load_scene(None)
         source = f"scene {resolve(args.scene)}" if args.scene else \

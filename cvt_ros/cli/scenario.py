@@ -75,6 +75,9 @@ def list_command(args):
     return 0
 
 
+PLOT_SUFFIXES = ('.png', '.pdf', '.svg')
+
+
 def run_command(args):
     overrides = {}
     if args.duration is not None:
@@ -87,14 +90,21 @@ def run_command(args):
                      f"{backend}")
     if args.realtime is not None and backend != 'dds':
         return _fail('--realtime needs --backend dds (the device against the wall clock)')
+    from ..recording import OutputError, OutputFiles
     try:
         scenario = load_scenario(args.scenario, overrides)
-        for path in (args.json, args.plot):
-            _check_output(path, args.overwrite)
+        # every target before the run: not an input, not one file twice, a folder that takes
+        # it, a format the plot can have, no existing file without --overwrite
+        outputs = OutputFiles(inputs=scenario.input_files())
+        if args.json:
+            outputs.check(args.json, overwrite=args.overwrite)
+        if args.plot:
+            outputs.check(args.plot, overwrite=args.overwrite, suffixes=PLOT_SUFFIXES)
         if args.mcap:
+            outputs.check(args.mcap, overwrite=args.overwrite)
             from ..recording.recorder import check_target
             check_target(args.mcap, args.overwrite)
-    except (ScenarioError, RecordingError, OSError) as exc:
+    except (ScenarioError, RecordingError) as exc:
         return _fail(str(exc))
     options = {}
     if backend == 'dds':
@@ -111,13 +121,15 @@ def run_command(args):
         print(run.format_table())
     print(run.summary_line())
     code = 0 if run.ok else 1
-    if args.json:
-        run.write_json(args.json)
-        print(f"metrics → {args.json}")
-    if args.plot:
-        from ..scenario.plot import plot_run
-        plot_run(run, args.plot)
-        print(f"plot → {args.plot}")
+    missing = run.missing_metrics()
+    if missing:   # a run too short for its step metrics is no answer to read as one
+        code = _fail(missing, 1)
+    try:
+        written = _write_outputs(run, args, outputs)
+    except OutputError as exc:
+        return _fail(f"{exc} (no output file was written)")
+    for line in written:
+        print(line)
     if args.mcap:
         from ..scenario.recording import write_mcap
         count, error = write_mcap(run, args.mcap, args.overwrite)
@@ -127,12 +139,26 @@ def run_command(args):
     return code
 
 
-def _check_output(path, overwrite):
-    import os
-    if path and os.path.exists(path) and not overwrite:
-        raise ScenarioError(f"{path} exists (use --overwrite to replace it)")
-    if path and not os.path.isdir(os.path.dirname(os.path.abspath(path))):
-        raise ScenarioError(f"{path}: no such directory")
+def _write_outputs(run, args, outputs):
+    """The JSON and the plot, both or neither (temporary files renamed at the end); the lines
+    that say where they went."""
+    written = []
+    with outputs:
+        if args.json:
+            import json
+            data = run.to_dict()
+            outputs.write(args.json, lambda f: (json.dump(data, f, indent=2, allow_nan=False),
+                                                f.write('\n')))
+            written.append(f"metrics → {args.json}")
+        if args.plot:
+            import matplotlib
+
+            from ..scenario.plot import plot_run
+            fmt = args.plot.rpartition('.')[2].lower()
+            with matplotlib.rc_context({'savefig.format': fmt}):   # (a file object: no suffix)
+                outputs.write(args.plot, lambda f: plot_run(run, f), 'wb')
+            written.append(f"plot → {args.plot}")
+    return written
 
 
 def _progress(duration):

@@ -9,6 +9,7 @@ import argparse
 import collections
 import contextlib
 import sys
+import warnings
 from pathlib import Path
 
 DEFAULT_MAX_CASES = 10_000
@@ -17,12 +18,16 @@ EPILOG = """\
 examples:
   cvt-sim sweep config/campaigns/conveyor_ratio_map.yaml --out ratio_map/
   cvt-sim sweep config/campaigns/conveyor_pi_gains.yaml --out gains/ --workers 8
-  cvt-sim sweep big.yaml --out big/ --scheduler tcp://head-node:8786 --yes
+  cvt-sim sweep big.yaml --out big/ --scheduler tls://head-node:8786 --yes \\
+      --tls-ca ca.pem --tls-cert me.pem --tls-key me-key.pem
   cvt-sim sweep config/campaigns/conveyor_shaft_stiffness.yaml --out x/ --dry-run  # list cases
 
 DIR gets results.parquet (one row per case: parameters, metrics, status, error, wall time),
-summary.png and campaign.yaml (the campaign as run). Rerunning the same command skips the cases
-already in the table. Campaign files and the cluster set-up: docs/sweeps.md.
+summary.png and campaign.yaml (the campaign as run); a campaign.yaml or summary.png in DIR that
+an earlier sweep did not write is refused (--overwrite replaces it). Rerunning the same command
+skips the cases already in the table. A cluster's workers run whatever their scheduler sends:
+connect to another machine's scheduler with tls:// (plain tcp:// is refused there without
+--insecure). Campaign files and the cluster set-up: docs/sweeps.md.
 """
 
 
@@ -51,8 +56,24 @@ def add_parser(sub):
                         'conveyor_pi_gains, conveyor_shaft_stiffness)')
     p.add_argument('--out', required=True, metavar='DIR',
                    help='output folder (created; holds the table, the plot, recordings)')
-    p.add_argument('--scheduler', metavar='tcp://HOST:8786',
-                   help='run on the Dask cluster of this scheduler instead of a local one')
+    p.add_argument('--scheduler', metavar='tls://HOST:8786',
+                   help='run on the Dask cluster of this scheduler instead of a local one '
+                        '(tls:// with --tls-* or the Dask config; tcp:// on this machine only, '
+                        'unless --insecure)')
+    p.add_argument('--tls-ca', metavar='FILE',
+                   help='tls:// scheduler: the CA certificate (PEM) that signed the cluster\'s '
+                        'certificates')
+    p.add_argument('--tls-cert', metavar='FILE',
+                   help="tls:// scheduler: this client's certificate (PEM), signed by the CA")
+    p.add_argument('--tls-key', metavar='FILE',
+                   help="tls:// scheduler: the certificate's private key (PEM; omit if the "
+                        "certificate file holds it)")
+    p.add_argument('--insecure', action='store_true',
+                   help='allow a plain tcp:// scheduler on another machine (anyone who can '
+                        'reach it runs code on its workers): only on a network you control')
+    p.add_argument('--overwrite', action='store_true',
+                   help='replace a campaign.yaml or summary.png in DIR that this sweep did not '
+                        'write')
     p.add_argument('--workers', type=_count, metavar='N',
                    help='local cluster: N worker processes (default: one per core); with '
                         '--scheduler: wait until N workers are connected (default 1)')
@@ -62,9 +83,9 @@ def add_parser(sub):
                    help='refuse campaigns of more cases without --yes (default %(default)s)')
     p.add_argument('--retry-failed', action='store_true',
                    help='run again the cases the table holds as failed')
-    p.add_argument('--dashboard', default=':8787', metavar='[HOST]:PORT',
-                   help="local cluster: the Dask dashboard's address (default %(default)s; "
-                        "another free port if taken)")
+    p.add_argument('--dashboard', default='127.0.0.1:8787', metavar='[HOST]:PORT',
+                   help="local cluster: the Dask dashboard's address (default %(default)s: "
+                        "this machine only; another free port if taken)")
     p.add_argument('--dry-run', action='store_true',
                    help='check the campaign and list its cases; run nothing')
     p.add_argument('--quiet', action='store_true', help='no progress bar')
@@ -151,24 +172,44 @@ def sweep_command(args):
             return _fail(f"{args.campaign}: {count:,} cases, more than --max-cases "
                          f"{args.max_cases:,}: check the campaign, or pass --yes to run them")
         out = Path(args.out)
-        if out.exists() and not out.is_dir():
-            return _fail(f"--out {args.out}: exists and is not a folder")
         tasks = build_tasks(campaign, out)
     except CampaignError as exc:
         return _fail(str(exc))
     if args.dry_run:
         return _dry_run(campaign, tasks)
-    from ..sweep.cluster import SweepError, open_cluster, plan_campaign, run_campaign
+    from ..sweep.cluster import (
+        SweepError,
+        check_scheduler,
+        open_cluster,
+        plan_campaign,
+        run_campaign,
+        tls_security,
+    )
+    from ..sweep.folder import SUMMARY, write_own
     from ..sweep.plots import plot_summary
     from ..sweep.table import TableError
     progress = _Progress(args.quiet)
     try:
-        plan = plan_campaign(campaign, out, tasks=tasks, retry_failed=args.retry_failed)
+        security = tls_security(args.tls_ca, args.tls_cert, args.tls_key)
+        if args.scheduler:   # (before any case, before the folder is made)
+            with warnings.catch_warnings(record=True) as warned:
+                warnings.simplefilter('always')
+                check_scheduler(args.scheduler, security, args.insecure)
+            for warning in warned:
+                print(f"cvt-sim sweep: warning: {warning.message}", file=sys.stderr)
+        elif security is not None:
+            return _fail('--tls-ca/--tls-cert/--tls-key apply to a --scheduler tls://…; the '
+                         'local cluster stays on this machine')
+        plan = plan_campaign(campaign, out, tasks=tasks, retry_failed=args.retry_failed,
+                             overwrite=args.overwrite)
         with contextlib.ExitStack() as stack:
             cluster = None
             if plan.todo:
-                cluster = stack.enter_context(open_cluster(args.scheduler, args.workers,
-                                                           args.dashboard))
+                with warnings.catch_warnings():
+                    warnings.simplefilter('ignore')   # (said once above)
+                    cluster = stack.enter_context(open_cluster(
+                        args.scheduler, args.workers, args.dashboard, security=security,
+                        insecure=args.insecure))
                 workers = cluster.workers()
                 print(f"{args.scheduler or 'local cluster'}: {len(workers)} workers, "
                       f"{sum(workers.values())} threads; dashboard "
@@ -181,5 +222,10 @@ def sweep_command(args):
         print(f"cvt-sim sweep: interrupted; the cases done are in {out / 'results.parquet'} "
               f"(run the same command again to resume)", file=sys.stderr)
         return 130
-    plot = plot_summary(campaign, run.rows, out / 'summary.png')
+    try:
+        plot = write_own(out, SUMMARY, lambda path: plot_summary(campaign, run.rows, path)) \
+            if run.rows else None
+    except TableError as exc:
+        _report(run, None)
+        return _fail(str(exc))
     return _report(run, plot)

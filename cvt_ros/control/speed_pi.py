@@ -26,6 +26,8 @@ closed-loop plots.
 import math
 from dataclasses import dataclass, fields
 
+from ..numbers import NotANumber, real_number
+
 TWO_PI = 2.0 * math.pi
 
 
@@ -112,7 +114,11 @@ class SpeedPIGains:
         """Raise ValueError naming the setting when a value is not usable."""
         for f in fields(self):
             v = getattr(self, f.name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v)):
+            try:
+                finite = math.isfinite(real_number(v))
+            except NotANumber as exc:
+                raise ValueError(f"{f.name}: {exc}") from None
+            if not finite:
                 raise ValueError(f"{f.name}: {v!r} is not a finite number")
         for name in ('kp', 'ki', 'crank_min'):
             if getattr(self, name) < 0:
@@ -191,12 +197,18 @@ class SpeedPI:
         return a
 
 
-def reference_controller(scenario):
-    """FACTORY for the harness (``--controller cvt_ros.control.speed_pi:reference_controller``):
-    the reference PI with the scenario's crank limits and its ``controller:`` settings."""
-    gains = SpeedPIGains(**scenario.controller_settings)
-    limits = scenario.crank_limits
+def reference_gains(settings, limits):
+    """The reference PI's checked settings: ``settings`` (a scenario's ``controller:`` map)
+    within the scenario's crank ``limits`` (min, max, rate). ValueError names the setting when
+    the two leave no room (crank_max 0.05 m against limits from 0.06 m)."""
+    gains = SpeedPIGains(**settings)
     gains.crank_min = max(gains.crank_min, limits.min)
     gains.crank_max = min(gains.crank_max, limits.max)
     gains.rate_limit = min(gains.rate_limit, limits.rate)
-    return SpeedPI(gains)
+    return gains.check()
+
+
+def reference_controller(scenario):
+    """FACTORY for the harness (``--controller cvt_ros.control.speed_pi:reference_controller``):
+    the reference PI with the scenario's crank limits and its ``controller:`` settings."""
+    return SpeedPI(reference_gains(scenario.controller_settings, scenario.crank_limits))

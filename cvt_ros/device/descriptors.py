@@ -62,7 +62,11 @@ def node_values(base_scene=DEFAULT_SCENE, overrides=None):
     raw.setdefault('solver.method', start_solver(raw.get('time_mode',
                                                          params_mod.SPECS['time_mode'].default)))
     try:
-        return params_mod.validate(raw)
+        values = params_mod.validate(raw)
+        # the node's offsets are explicit (its double-array parameter: ROS cannot type an
+        # empty one), the scene's default spelled out
+        values['paths.phase_offsets'] = params_mod.phase_offsets(values)
+        return values
     except (ParameterError, GrashofError) as exc:
         where = f" (base scene {base_scene})" if base_scene else ''
         raise SceneError(f"invalid scene parameters{where}: {exc}") from None
@@ -103,6 +107,8 @@ def ros_value(spec, value):
         return int(value)
     if kind is float:
         return float(value)
+    if kind is tuple:   # a double array (paths.phase_offsets)
+        return [float(x) for x in value]
     return str(value)
 
 
@@ -136,7 +142,7 @@ def describe(spec, values):
             d.integer_range = [IntegerRange(from_value=choices[0], to_value=choices[-1],
                                             step=steps.pop() if len(steps) == 1 else 0)]
         return d
-    if kind is str:
+    if kind in (str, tuple):
         d.additional_constraints = spec.range_text()
         return d
     low, high = spec.low, upper_bound(spec, values)
@@ -153,7 +159,8 @@ def describe(spec, values):
 
 
 _TYPES = {bool: ParameterType.PARAMETER_BOOL, int: ParameterType.PARAMETER_INTEGER,
-          float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING}
+          float: ParameterType.PARAMETER_DOUBLE, str: ParameterType.PARAMETER_STRING,
+          tuple: ParameterType.PARAMETER_DOUBLE_ARRAY}
 
 
 def parameter_table(values):
@@ -164,7 +171,7 @@ def parameter_table(values):
     for name, spec in params_mod.SPECS.items():
         if spec.choices:
             accepted = ' | '.join(_yaml_text(c) for c in spec.choices)
-        elif isinstance(spec.default, str):
+        elif isinstance(spec.default, (str, tuple)):
             accepted = spec.range_text()
         else:
             accepted = range_text(spec, values)
@@ -181,6 +188,8 @@ def _yaml_text(value):
         return value or "''"
     if isinstance(value, float) and math.isinf(value):
         return '.inf' if value > 0 else '-.inf'
+    if isinstance(value, tuple):
+        return '[' + ', '.join(_yaml_text(float(x)) for x in value) + ']'
     return params_mod.number_text(value) if isinstance(value, float) else str(value)
 
 

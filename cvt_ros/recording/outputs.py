@@ -63,6 +63,17 @@ def _reason(exc: OSError) -> str:
     return exc.strerror or str(exc)
 
 
+def _probe(folder: str, path: str) -> None:
+    """Create and remove a file in ``folder``: what os.access cannot tell (root on a read-only
+    or virtual file system such as /proc) shows before the work, not after it."""
+    try:
+        fd, temp = tempfile.mkstemp(prefix='.cvt-probe-', dir=folder)
+    except OSError as exc:
+        raise OutputError(f'{path}: cannot write in {folder}: {_reason(exc)}') from None
+    os.close(fd)
+    os.unlink(temp)
+
+
 class OutputFiles:
     """The output files of one command. ``inputs``: files the command reads (never written).
 
@@ -83,12 +94,24 @@ class OutputFiles:
         self._direct: set[str] = set()
 
     # ------------------------------------------------------------------ checks
-    def check(self, path: str | os.PathLike[str], *, directory: bool = False) -> str:
-        """Refuse ``path`` now if it cannot become an output; returns it as a str."""
+    def check(self, path: str | os.PathLike[str], *, directory: bool = False,
+              overwrite: bool = True, suffixes: Iterable[str] = ()) -> str:
+        """Refuse ``path`` now if it cannot become an output; returns it as a str.
+        ``overwrite`` False: an existing file is refused (the user's, until --overwrite says
+        otherwise); ``suffixes``: the file's format follows its suffix, one of these."""
         path = os.fspath(path)
         what = 'directory' if directory else 'file'
         if not path:
             raise OutputError(f'empty output {what} name')
+        if '\0' in path:
+            raise OutputError(f'{path!r}: a file name cannot hold a NUL byte')
+        suffixes = tuple(suffixes)
+        if suffixes and not directory and not path.lower().endswith(suffixes):
+            if os.path.isdir(path):
+                raise OutputError(f'{path}: is a directory; name a file in it, e.g. '
+                                  f'{os.path.join(path, "run" + suffixes[0])}')
+            raise OutputError(f'{path}: the format follows the suffix: name a '
+                              f'{", ".join(suffixes)} file')
         for source in self.inputs:
             if same_file(path, source):
                 raise OutputError(f'{path}: is an input of this command; refusing to write '
@@ -102,12 +125,16 @@ class OutputFiles:
                 raise OutputError(f'{path}: exists and is not a directory')
         elif os.path.isdir(path):
             raise OutputError(f'{path}: is a directory, not a file')
+        elif not overwrite and os.path.lexists(path) and not _special(path):
+            raise OutputError(f'{path}: exists (use --overwrite to replace it)')
         if not os.path.isdir(where):
             raise OutputError(f'{path}: no such directory {where}')
         if not os.access(where, os.W_OK | os.X_OK) and not _special(path):
             raise OutputError(f'{path}: permission denied (directory {where})')
         if len(os.path.basename(path).encode()) > 255:
             raise OutputError(f'{path[:60]}…: file name longer than 255 bytes')
+        if not directory and not _special(path):
+            _probe(where, path)
         if not directory:
             self._targets.append(path)
         return path

@@ -25,6 +25,7 @@ import numpy as np
 
 from ..control.measurement import ControllerError, Measurement
 from ..control.speed_pi import reference_controller
+from ..numbers import NotANumber, real_number, shown
 from ..solver.output import COL, N_COLUMNS
 from ..solver.simulator import SimulationError
 from .plants import OfflinePlant, plant_values
@@ -33,6 +34,7 @@ from .result import ScenarioRun
 
 BACKENDS = ('offline', 'lockstep', 'dds')
 CLAMP_TOLERANCE = 1e-12   # m: a limited command counts as clamped beyond rounding
+SCHEDULE_CHUNK = 1 << 16  # control periods whose set point and load are sampled at once
 REFERENCE = 'cvt_ros.control.speed_pi:reference_controller'
 _POS = [COL[c] for c in ('phi1', 'phi2', 'phi3', 'phi4')]
 _VEL = [COL[c] for c in ('omega1', 'omega2', 'omega3', 'omega4')]
@@ -47,31 +49,39 @@ class HarnessError(RuntimeError):
 
 
 def load_controller(spec, scenario):
-    """``MODULE:FACTORY`` → the controller ``FACTORY(scenario)`` (or ``FACTORY()``) returns."""
+    """``MODULE:FACTORY`` → the controller ``FACTORY(scenario)`` returns, or ``FACTORY()`` when it
+    takes no argument. A class is the controller's type, its constructor's parameters its own
+    settings (``MyPI(kp=2e-3, ...)``): it gets the scenario only as a parameter named
+    ``scenario``, else it is built with its defaults."""
     module_name, sep, attr = str(spec).partition(':')
     if not sep or not module_name or not attr:
         raise HarnessError(f"--controller {spec!r}: expected MODULE:FACTORY, e.g. {REFERENCE}")
     try:
         module = importlib.import_module(module_name)
-    except Exception as exc:   # noqa: BLE001 — any import failure is the user's module's
+    except (Exception, SystemExit) as exc:   # noqa: BLE001 — the user's module's failure
         raise HarnessError(f"--controller {spec!r}: cannot import {module_name}: "
-                           f"{exc!r}") from None
+                           f"{shown(exc, 300)}") from None
     factory = module
     for part in attr.split('.'):
-        factory = getattr(factory, part, None)
+        try:
+            factory = getattr(factory, part, None)
+        except Exception:   # noqa: BLE001 — a module __getattr__ that raises
+            factory = None
         if factory is None:
             raise HarnessError(f"--controller {spec!r}: {module_name} has no {attr}")
     try:
-        takes_scenario = bool(inspect.signature(factory).parameters)
+        parameters = inspect.signature(factory).parameters
+        takes_scenario = 'scenario' in parameters if inspect.isclass(factory) else bool(parameters)
     except (TypeError, ValueError):
-        takes_scenario = True
+        takes_scenario = not inspect.isclass(factory)
     try:
         controller = factory(scenario) if takes_scenario else factory()
-    except Exception as exc:   # noqa: BLE001
-        raise HarnessError(f"--controller {spec!r}: {attr}() raised {exc!r}") from None
+    except (Exception, SystemExit) as exc:   # noqa: BLE001
+        raise HarnessError(f"--controller {spec!r}: {attr}() raised {shown(exc, 300)}"
+                           ) from None
     if not callable(controller):
-        raise HarnessError(f"--controller {spec!r}: {attr}() returned {controller!r}, not a "
-                           f"callable controller(measurement) -> crank length")
+        raise HarnessError(f"--controller {spec!r}: {attr}() returned {shown(controller)}, "
+                           f"not a callable controller(measurement) -> crank length")
     return controller
 
 
@@ -114,6 +124,14 @@ def run_scenario(scenario, controller=None, backend='offline', progress=None, pl
         plant.close()
 
 
+def _schedule_chunk(scenario, k0):
+    """(set points, loads, end): the schedules at periods k0 … end − 1, as Python floats (the
+    loop compares and passes them on), end at most SCHEDULE_CHUNK periods on."""
+    end = min(k0 + SCHEDULE_CHUNK, scenario.periods + 1)
+    t = np.arange(k0, end) * scenario.control_period
+    return scenario.setpoint.sample(t).tolist(), scenario.load.sample(t).tolist(), end
+
+
 def _external(measurement):
     """Stands in for a controller in another process: it commands the device itself."""
     return None
@@ -122,13 +140,12 @@ def _external(measurement):
 def _loop(scenario, controller, plant, controller_name, progress):
     n = scenario.periods
     dt = scenario.control_period
-    grid = scenario.time_grid()
-    setpoint = scenario.setpoint.sample(grid)
-    load = scenario.load.sample(grid)
-    setpoints = setpoint.tolist()     # (Python floats: the loop compares and passes them on)
-    loads = load.tolist()
+    # the schedules are sampled a chunk of periods at a time (a day-long run never holds its
+    # whole grid as Python floats), and the samples' rows are memory only once written
+    setpoints, loads, chunk_end = _schedule_chunk(scenario, 0)
+    chunk0 = 0
     limits = scenario.crank_limits
-    rows = np.full((n + 1, N_COLUMNS), np.nan)
+    rows = np.empty((n + 1, N_COLUMNS))
     commands = np.full(n + 1, np.nan)
     switches = []
     sensors = SensorModel(scenario.sensors, dt, scenario.seed)
@@ -147,34 +164,44 @@ def _loop(scenario, controller, plant, controller_name, progress):
     error = exception = None
     every = max(1, n // 100)
     skips = getattr(plant, 'skips_periods', False)   # realtime: the newest sample only
+    sampled = np.zeros(n + 1, dtype=bool) if skips else None   # (periods with a sample)
+    if skips:
+        sampled[0] = True
     k = 0
     try:
         # (locals, not attributes or globals: this loop is a good part of a period's cost)
         step, new_tuple, measurement, n_seen = plant.step, _new_tuple, Measurement, _N_SEEN
         while k < n:
-            if loads[k] != load_now:
-                load_now = loads[k]
+            if k >= chunk_end:
+                setpoints, loads, chunk_end = _schedule_chunk(scenario, k)
+                chunk0 = k
+            j = k - chunk0
+            if loads[j] != load_now:
+                load_now = loads[j]
                 plant.set_load_torque(load_now)
             r = row[:n_seen].tolist()
             # the time as a ROS stamp carries it (whole ns): every back end's controller sees
             # the same number (offline's t is a running sum of periods, dds's a stamp)
             r[0] = round(r[0] * 1e9) * 1e-9
             seen = (r[0], (r[1], r[2], r[3], r[4]), (r[5], r[6], r[7], r[8]),
-                    (r[14], r[11], r[15], r[13]), r[12], r[11] > 0.0, setpoints[k])
+                    (r[14], r[11], r[15], r[13]), r[12], r[11] > 0.0, setpoints[j])
             m = new_tuple(measurement, seen) if observe is None else observe(*seen)
             try:
                 a = controller(m)
-            except Exception as exc:   # noqa: BLE001 — the user's code: report, keep the run
+            except (Exception, SystemExit) as exc:   # noqa: BLE001 — the user's code
                 where = traceback.extract_tb(exc.__traceback__)[-1]   # the raising line
-                raise ControllerError(f"the controller raised {exc!r} at t = {r[0]:.6f} s "
+                raise ControllerError(f"the controller raised {shown(exc, 300)} at t = "
+                                      f"{r[0]:.6f} s "
                                       f"(period {k}) in {where.filename}:{where.lineno} "
                                       f"({where.name})") from exc
             if a is not None:
-                try:
-                    a = float(a)
-                except (TypeError, ValueError):
-                    raise ControllerError(f"the controller returned {a!r} at t = {r[0]:.6f} s "
-                                          f"(period {k}): not a crank length [m]") from None
+                if type(a) is not float:   # (numpy's float64 is one; text and bools are not)
+                    try:
+                        a = real_number(a)
+                    except NotANumber as exc:
+                        raise ControllerError(f"the controller returned {shown(a)} at t = "
+                                              f"{r[0]:.6f} s (period {k}): not a crank length "
+                                              f"[m] ({exc})") from None
                 if not math.isfinite(a):
                     raise ControllerError(f"the controller returned {a!r} at t = {r[0]:.6f} s "
                                           f"(period {k}): not a finite crank length")
@@ -191,6 +218,8 @@ def _loop(scenario, controller, plant, controller_name, progress):
             row, sw = step()
             k_next = min(max(k + 1, int(round(row[0] / dt))), n) if skips else k + 1
             rows[k_next] = row
+            if skips:
+                sampled[k_next] = True
             if sw:
                 switches.extend(sw)
             if progress is not None and k // every != k_next // every:
@@ -203,14 +232,16 @@ def _loop(scenario, controller, plant, controller_name, progress):
     except KeyboardInterrupt:
         error = f"interrupted at t = {k * dt:.6f} s (period {k})"
     wall = time.perf_counter() - wall0
-    keep = np.flatnonzero(np.isfinite(rows[:k + 1, 0]))   # (realtime: the samples seen)
-    samples = rows[keep]
+    keep = np.flatnonzero(sampled[:k + 1]) if skips else np.arange(k + 1)   # (samples seen)
+    samples = rows[:k + 1] if len(keep) == k + 1 else rows[keep]   # (a view: no second copy)
     # the sample times as the stamps carry them (whole ns, as the controller saw them): offline's
     # t is a running sum of periods (12.344999999998597 for 12.345), dds's a stamp, and the
     # metrics are computed from these times
     samples[:, 0] = np.round(samples[:, 0] * 1e9) * 1e-9
     recorded = plant.recorded_samples(k * dt) if hasattr(plant, 'recorded_samples') else None
-    if recorded is not None and len(recorded[0]):
+    if recorded is not None and recorded[0] is None:
+        switches = recorded[1]   # dds lockstep: the switches at their own times (its recording)
+    elif recorded is not None and len(recorded[0]):
         # realtime: the device's own recording has every period; the controller saw `keep`
         samples, switches, external = recorded
         keep = np.clip(np.round(samples[:, 0] / dt).astype(int), 0, n)
@@ -221,8 +252,13 @@ def _loop(scenario, controller, plant, controller_name, progress):
     # the solver's self-check where the plant runs in this process (a node over DDS reports it
     # on its /diagnostics and in its own recording)
     self_check = plant.self_check() if hasattr(plant, 'self_check') else None
+    grid = keep * dt   # (k·period: the same numbers as the chunks the loop read)
     return ScenarioRun(scenario=scenario, backend=plant.name, controller=controller_name,
-                       samples=samples, setpoint=setpoint[keep], load=load[keep],
+                       samples=samples, setpoint=scenario.setpoint.sample(grid),
+                       load=scenario.load.sample(grid),
                        commands=commands[keep], switches=switches, clamped=clamped,
                        wall_time=wall, error=error, exception=exception,
-                       realtime=getattr(plant, 'realtime', None), self_check=self_check)
+                       realtime=getattr(plant, 'realtime', None),
+                       domain=getattr(plant, 'domain', None),
+                       node_timing=getattr(plant, 'node_timing', None),
+                       diagnostics=list(getattr(plant, 'diagnostics', ())), self_check=self_check)

@@ -21,18 +21,22 @@ Schedules: cvt_ros/scenario/schedule.py. Every error names the file, the key and
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
-from ..control.speed_pi import SpeedPIGains
+from ..control.speed_pi import SpeedPIGains, reference_gains
 from ..physics.linkage import grashof_bound
 from ..scene import SceneError, config_dirs, load_scene, shipped_file
-from ..yaml_file import InputFileError, read_yaml
+from ..yaml_file import InputFileError, numbers_in, read_yaml
 from .checks import number
 from .realism import ActuatorSpec, RealismError, SensorSpec, parse_actuator, parse_sensors
 from .schedule import Schedule, ScheduleError, parse_schedule
 
 KEYS = ('description', 'scene', 'overrides', 'duration', 'control_period', 'seed', 'setpoint',
         'load', 'crank_limits', 'sensors', 'actuator', 'controller')
+#: keys whose values are text, not numbers (a scene named 1e5 stays a name)
+TEXT_KEYS = ('description', 'scene', 'file', 'column', 'time_column')
 MAX_DURATION = 86400.0          # s
-MAX_PERIODS = 100_000_000       # control periods in one run
+MAX_PERIODS = 5_000_000         # control periods in one run: the run keeps each period's
+#                                 sample (metrics, plot, recording), ~0.4 kB each: ≤ 2 GB
+MIN_PERIODS = 2                 # control periods in one run at least (three samples)
 SPEED_LIMIT = 1e4               # rad/s: the parameter table's bound on speeds
 
 
@@ -73,6 +77,11 @@ class Scenario:
     def periods(self):
         """Control periods in the run."""
         return int(round(self.duration / self.control_period))
+
+    def input_files(self):
+        """The files this scenario reads (itself, its scene, its profiles): never an output."""
+        profiles = [c.file for s in (self.setpoint, self.load) for c in s.changes if c.file]
+        return [str(self.path), str(self.scene), *profiles]
 
     def time_grid(self):
         """Start times of the control periods and the end: k·period, k = 0..periods [s]."""
@@ -121,7 +130,7 @@ def load_scenario(path, overrides=None):
         raise ScenarioError(f"{path}: expected a map of scenario keys ({', '.join(KEYS)}), got "
                             f"{type(doc).__name__}")
     overrides = dict(overrides or {})
-    doc = dict(doc, **overrides)
+    doc = numbers_in(dict(doc, **overrides), TEXT_KEYS)   # (1e-3 is a number, as in scene files)
     where = str(path)
     unknown = [k for k in doc if k not in KEYS]
     if unknown:
@@ -139,7 +148,12 @@ def load_scenario(path, overrides=None):
     period = _number(doc, 'control_period', 1e-5, 0.1, 1e-3, where)
     if duration / period > MAX_PERIODS:
         raise ScenarioError(f"{where}: duration: {duration:g} s is {duration / period:.3g} "
-                            f"control periods, more than {MAX_PERIODS:g}")
+                            f"control periods, more than {MAX_PERIODS:g} (a run keeps every "
+                            f"period's sample in memory, ~0.4 kB each): a longer "
+                            f"control_period or a shorter duration")
+    if duration < MIN_PERIODS * period * (1.0 - 1e-9):   # (the step metrics need samples)
+        raise ScenarioError(f"{where}: duration: {duration:g} s is shorter than "
+                            f"{MIN_PERIODS} control periods ({period:g} s each)")
     if abs(duration / period - round(duration / period)) > 1e-6:
         raise ScenarioError(f"{where}: duration: {duration:g} s is not a whole number of "
                             f"control periods ({period:g} s)")
@@ -177,7 +191,7 @@ def load_scenario(path, overrides=None):
     except (ScheduleError, RealismError) as exc:
         raise ScenarioError(f"{where}: {exc}") from None
     limits = _crank_limits(doc.get('crank_limits'), values, where)
-    settings = _controller_settings(doc.get('controller'), where)
+    settings = _controller_settings(doc.get('controller'), limits, where)
     return Scenario(path, scene_file, values, duration, period, setpoint, load, limits, sensors,
                     actuator, seed, description, dict(scene_overrides), settings)
 
@@ -197,12 +211,14 @@ def _crank_limits(body, values, where):
     if hi >= bound:
         raise ScenarioError(f"{w}: max: {hi:g} m must stay below the Grashof bound {bound:g} m")
     lo = _number(body, 'min', 0.0, hi, 0.0, w)
+    if not hi > lo:   # (a controller test needs a crank that can move)
+        raise ScenarioError(f"{w}: max: {hi:g} m must be above min {lo:g} m")
     rate = _number(body, 'rate', 0.0, 10.0, values['linkage.crank_rate_limit'], w,
                    open_low=True)
     return CrankLimits(lo, hi, rate)
 
 
-def _controller_settings(body, where):
+def _controller_settings(body, limits, where):
     body = body or {}
     if not isinstance(body, dict):
         raise ScenarioError(f"{where}: controller: expected a map of reference controller "
@@ -216,4 +232,10 @@ def _controller_settings(body, where):
         SpeedPIGains(**body).check()
     except ValueError as exc:
         raise ScenarioError(f"{where}: controller.{exc}") from None
+    try:   # the settings as the reference controller takes them: within the crank limits
+        reference_gains(body, limits)
+    except ValueError as exc:
+        raise ScenarioError(f"{where}: controller/crank_limits: the reference controller's "
+                            f"{exc} (within crank_limits [{limits.min:g}, {limits.max:g}] m)"
+                            ) from None
     return dict(body)

@@ -27,10 +27,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ..yaml_file import InputFileError, read_text
 from .checks import number
 
 KINDS = ('step', 'ramp', 'sine', 'profile')
 MAX_PROFILE_ROWS = 1_000_000
+MAX_PROFILE_BYTES = 64 << 20     # a million rows of two numbers fit well
 
 
 class ScheduleError(ValueError):
@@ -50,6 +52,7 @@ class Change:
     times: np.ndarray = None         # profile: times relative to ``at`` [s]
     values: np.ndarray = None        # profile values
     source: str = ''                 # profile: file (and column) it came from
+    file: str = ''                   # profile: the file it came from
 
     @property
     def end(self):
@@ -63,29 +66,42 @@ class Schedule:
     changes: tuple = field(default_factory=tuple)
 
     def sample(self, t):
-        """The signal at the times ``t`` (array, increasing) → array of the same shape."""
+        """The signal at the times ``t`` (array) → array of the same shape. Each change fills
+        only the times up to the next change's start (found by bisection), so the cost is
+        O(len(t) + changes), not their product (5000 changes over a day's grid)."""
         t = np.asarray(t, dtype=float)
+        shape, t = t.shape, t.ravel()
+        order = None
+        if t.size > 1 and np.any(t[1:] < t[:-1]):   # (callers pass increasing times)
+            order = np.argsort(t, kind='stable')
+            t = t[order]
         out = np.full(t.shape, float(self.initial))
         level = float(self.initial)
-        for c in self.changes:
-            live = t >= c.at
+        starts = np.searchsorted(t, [c.at for c in self.changes], side='left').tolist()
+        starts.append(t.size)
+        for c, i0, i1 in zip(self.changes, starts, starts[1:], strict=False):
+            seg = t[i0:i1]        # from this change's start to the next one's
             if c.kind == 'step':
                 level = c.value
-                out[live] = level
+                out[i0:i1] = level
             elif c.kind == 'ramp':
-                frac = np.clip((t[live] - c.at) / c.duration, 0.0, 1.0) if c.duration > 0 \
-                    else np.ones(int(live.sum()))
-                out[live] = level + (c.value - level) * frac
+                frac = np.clip((seg - c.at) / c.duration, 0.0, 1.0) if c.duration > 0 \
+                    else np.ones(seg.size)
+                out[i0:i1] = level + (c.value - level) * frac
                 level = c.value
             elif c.kind == 'sine':
-                out[live] = level
-                on = live & (t < c.end)
-                out[on] += c.amplitude * np.sin(2.0 * math.pi * c.frequency * (t[on] - c.at)
-                                                + c.phase)
+                on = seg < c.end
+                out[i0:i1] = level
+                out[i0:i1][on] += c.amplitude * np.sin(2.0 * math.pi * c.frequency
+                                                       * (seg[on] - c.at) + c.phase)
             else:  # profile
-                out[live] = np.interp(t[live] - c.at, c.times, c.values)
+                out[i0:i1] = np.interp(seg - c.at, c.times, c.values)
                 level = float(c.values[-1])
-        return out
+        if order is not None:
+            unsorted = np.empty_like(out)
+            unsorted[order] = out
+            out = unsorted
+        return out.reshape(shape)
 
     def change_times(self):
         """Start times of the changes [s] (where a step response begins)."""
@@ -213,18 +229,19 @@ def _parse_profile(body, key, at, lo, hi, unit, base_dir):
             raise ScheduleError(f"{key}: {path} row {j + 2}: {column} = {v:g}"
                                 f"{f' {unit}' if unit else ''} is outside [{lo:g}, {hi:g}]")
     return Change(at, 'profile', duration=float(times[-1]), times=times, values=values,
-                  source=f"{path}:{column}")
+                  source=f"{path}:{column}", file=str(path))
 
 
 def read_profile(path, time_column='t', column=None, key='profile'):
     """A recorded profile: (times from 0 [s], values, value column name) from a CSV file with a
     header line. ``column`` None: the one column besides the time column."""
-    try:
-        with open(path, newline='') as f:
-            rows = list(csv.reader(line for line in f if not line.lstrip().startswith('#')))
-    except OSError as exc:
-        raise ScheduleError(f"{key}.file: cannot read {path}: {exc.strerror or exc}") from None
-    except (UnicodeDecodeError, csv.Error) as exc:
+    try:   # (a regular file of bounded size: a FIFO or /dev/zero is refused, not read)
+        text = read_text(path, limit=MAX_PROFILE_BYTES, kind='a CSV file')
+        rows = list(csv.reader(line for line in text.splitlines()
+                               if not line.lstrip().startswith('#')))
+    except InputFileError as exc:
+        raise ScheduleError(f"{key}.file: {exc}") from None
+    except csv.Error as exc:
         raise ScheduleError(f"{key}.file: {path} is not a CSV text file ({exc})") from None
     if len(rows) < 3:
         raise ScheduleError(f"{key}.file: {path} needs a header line and at least 2 rows")

@@ -14,6 +14,7 @@ import time
 import numpy as np
 
 from .averaged import AveragedSimulator
+from .paths_simulator import PathsSimulator
 from .simulator import Simulator
 
 FIDELITIES = ('full', 'rigid_shaft', 'averaged')
@@ -21,9 +22,12 @@ CHEAPEST_FIRST = ('averaged', 'rigid_shaft', 'full')
 
 
 def make_simulator(values, progress=None):
-    """The simulator for the scene's ``model.fidelity``."""
+    """The simulator for the scene's ``model.fidelity`` and ``paths.count`` (N ≥ 2: the
+    N-path core, paths_simulator.py)."""
     if values.get('model.fidelity', 'full') == 'averaged':
         return AveragedSimulator(values, progress)
+    if values.get('paths.count', 1) > 1:
+        return PathsSimulator(values)
     return Simulator(values)
 
 

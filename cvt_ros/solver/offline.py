@@ -10,11 +10,10 @@ import numpy as np
 
 from ..scene import load_scene
 from .fidelity import make_simulator
-from .output import COL, CSV_COLUMNS
+from .output import COL, COLUMNS, CSV_COLUMNS, csv_columns
 
-# Columns printed as integers; every other column keeps 12 significant digits (1e-9 rad on φ4
-# after hours of running at ~40 rad/s).
-_CSV_FORMATS = ['%d' if name == 'engaged' else '%.12g' for name in CSV_COLUMNS]
+# The engaged columns are printed as integers; every other column keeps 12 significant digits
+# (1e-9 rad on φ4 after hours of running at ~40 rad/s).
 # A mean crank speed below this fraction of the largest |ω1| is "at rest": no ratio is defined.
 RATIO_DEFINED_BELOW = 1e-6
 # An energy balance that closes worse than this fraction of the work is not a converged answer.
@@ -40,15 +39,21 @@ def run_scene(scene, duration, overrides=None, sample_dt=1e-3, progress=None, or
 
 class CsvWriter:
     """The CSV of ``cvt-sim run --csv``, written block by block (``add(block)``), so that a run
-    of any length streams to disk in constant memory. A context manager; ``rows`` counts."""
+    of any length streams to disk in constant memory. A context manager; ``rows`` counts.
+    ``columns``: the samples' (an N-path machine's add its per-path ones to the CSV)."""
 
-    def __init__(self, path):
+    def __init__(self, path, columns=COLUMNS):
+        names = csv_columns(columns)
+        self._index = [columns.index(name) for name in names]
+        self._formats = ['%d' if name.startswith('engaged') else '%.12g' for name in names]
         self._file = open(path, 'w')   # noqa: SIM115 — closed by close() / __exit__
-        self._file.write(','.join(CSV_COLUMNS) + '\n')
+        self._file.write(','.join(names) + '\n')
         self.rows = 0
 
     def add(self, block):
-        np.savetxt(self._file, block[:, :len(CSV_COLUMNS)], delimiter=',', fmt=_CSV_FORMATS)
+        rows = block[:, :len(CSV_COLUMNS)] if len(self._index) == len(CSV_COLUMNS) else \
+            block[:, self._index]
+        np.savetxt(self._file, rows, delimiter=',', fmt=self._formats)
         self.rows += len(block)
 
     def close(self):
@@ -61,9 +66,10 @@ class CsvWriter:
         self.close()
 
 
-def write_csv(path, samples):
-    """The CSV columns of ``cvt-sim run`` (output.CSV_COLUMNS, in order) with a header line."""
-    with CsvWriter(path) as csv:
+def write_csv(path, samples, columns=COLUMNS):
+    """The CSV columns of ``cvt-sim run`` (output.csv_columns of the samples' ``columns``, in
+    order) with a header line."""
+    with CsvWriter(path, columns) as csv:
         csv.add(samples)
 
 
@@ -72,8 +78,12 @@ class SampleStatistics:
     memory): mean crank and output speed over the run and over its last quarter (from
     ``t_tail``), peak clutch torque and peak |twist| over the whole run, start-up included."""
 
-    def __init__(self, t_tail):
+    def __init__(self, t_tail, columns=COLUMNS):
         self.t_tail = t_tail
+        # an N-path machine's clutch torques, path by path (peak per path)
+        self._path_torques = [i for i, name in enumerate(columns)
+                              if name.startswith('clutch_torque_')]
+        self.peak_clutch_torque_per_path = [-math.inf] * len(self._path_torques)
         self.count = self.tail_count = 0
         self.sum_w1 = self.sum_w4 = self.tail_w1 = self.tail_w4 = 0.0
         self.max_abs_w1 = self.tail_max_abs_w1 = 0.0
@@ -95,6 +105,10 @@ class SampleStatistics:
         self.peak_clutch_torque = max(self.peak_clutch_torque,
                                       float(np.max(clutch_torque, initial=-math.inf)))
         self.peak_twist = max(self.peak_twist, float(np.max(twist, initial=-math.inf)))
+        for k, i in enumerate(self._path_torques):
+            self.peak_clutch_torque_per_path[k] = max(
+                self.peak_clutch_torque_per_path[k], float(np.max(block[:, i],
+                                                                  initial=-math.inf)))
 
     @staticmethod
     def _ratio(sum_w4, sum_w1, max_abs_w1):
@@ -113,8 +127,8 @@ class SampleStatistics:
         return self._ratio(self.tail_w4, self.tail_w1, self.tail_max_abs_w1)
 
 
-def statistics_of(samples, t_tail):
-    stats = SampleStatistics(t_tail)
+def statistics_of(samples, t_tail, columns=COLUMNS):
+    stats = SampleStatistics(t_tail, columns)
     stats.add(samples)
     return stats
 
@@ -129,7 +143,7 @@ def summarize(result, duration, statistics=None):
     that qualify them (``warnings``: one line each; a figure that is not meaningful is nan).
     ``statistics``: the SampleStatistics of a streamed run (default: from ``result.samples``)."""
     stats = statistics or statistics_of(result.samples, tail_start(result.samples[0, 0],
-                                                                   duration))
+                                                                   duration), result.columns)
     diagnostics = getattr(result, 'diagnostics', {})
     summary = {
         'duration_s': duration,
@@ -154,6 +168,9 @@ def summarize(result, duration, statistics=None):
         'wall_time_s': result.wall_time,
         'real_time_factor': duration / result.wall_time if result.wall_time > 0 else math.inf,
     }
+    if len(result.switches_per_path) > 1:   # an N-path machine: each path's clutch
+        summary['switches_per_path'] = list(result.switches_per_path)
+        summary['peak_clutch_torque_per_path_Nm'] = list(stats.peak_clutch_torque_per_path)
     warnings = list(diagnostics.get('warnings', ()))
     if math.isnan(summary['mean_ratio']):
         warnings.append('the crank is at rest on average: no ratio ω4/ω1 is defined')

@@ -12,6 +12,23 @@ COLUMNS = (
 CSV_COLUMNS = COLUMNS[:14]
 COL = {name: i for i, name in enumerate(COLUMNS)}
 N_COLUMNS = len(COLUMNS)
+# an N-path machine (N ≥ 2) has these per path after COLUMNS, each quantity's N together:
+# phi2_1 … phi2_N, omega2_1 …, engaged_1 …, clutch_torque_1 … (phi2, omega2 stay path 1's
+# rocker; engaged: any clutch engaged; clutch_torque: what all the clutches pass to J3)
+PATH_QUANTITIES = ('phi2', 'omega2', 'engaged', 'clutch_torque')
+
+
+def path_columns(n_paths, per_path=None):
+    """The sample columns of a machine of ``n_paths`` paths: COLUMNS for one, unless
+    ``per_path`` (the N-path core run at N = 1 has them)."""
+    if not (per_path if per_path is not None else n_paths > 1):
+        return COLUMNS
+    return COLUMNS + tuple(f"{q}_{k}" for q in PATH_QUANTITIES for k in range(1, n_paths + 1))
+
+
+def csv_columns(columns):
+    """The CSV's columns of samples with ``columns``: CSV_COLUMNS, then the per-path ones."""
+    return CSV_COLUMNS + tuple(columns[N_COLUMNS:])
 
 
 @kernel

@@ -29,10 +29,15 @@ from ..physics import layout as L
 from ..physics.compiled import FASTMATH
 from ..physics.drives import crank_actuator
 from ..physics.dynamics import rhs
+from ..physics.paths import P_PATHS, paths_rhs
 from . import advance_layout as AL
 from . import hybrid
+from . import paths_layout as PL
 from .averaged import AveragedSimulator, averaged_advance, averaged_sample
 from .output import COL, N_COLUMNS, write_sample
+from .paths_hybrid import advance_paths
+from .paths_simulator import PathsSimulator
+from .paths_steps import write_paths_sample
 from .simulator import (
     F_ACT,
     F_AUX,
@@ -103,6 +108,42 @@ def hybrid_period(t, dt, h_fixed, F, I, LIN, events, turns1, turns4):
     return t, EVENTS if counters[AL.C_EVENTS] > 0 else DONE, rate
 
 
+@njit(cache=True, error_model='numpy', fastmath=FASTMATH, _nrt=False)
+def paths_period(t, dt, h_fixed, F, I, events, turns1, turns4):
+    """PathsSimulator.advance(dt) then .sample() into its row, over its blocks
+    (paths_layout.PF_*): (t, code, crank rate), as hybrid_period."""
+    n = int(F[PL.PF_P + P_PATHS])
+    columns = N_COLUMNS + PL.N_PATH_COLUMNS * n
+    y = F[PL.PF_Y:PL.PF_Y + L.N_STATE + n]
+    P = F[PL.PF_P:PL.PF_ACT]
+    ACT = F[PL.PF_ACT:PL.PF_S].reshape((L.N_ACT_SEGMENTS, 4))
+    S = F[PL.PF_S:PL.PF_H]
+    no_grid = F[:0]
+    if S[AL.S_METHOD] == RK4:
+        S[AL.S_H_FIXED] = dt / max(1, math.ceil(dt / h_fixed - 1e-9))
+    ms = I[I_MS:I_COUNTERS]
+    counters = I[I_COUNTERS:]
+    t = advance_paths(t, t + dt, y, ms, P, ACT, S, F[PL.PF_H:PL.PF_LEDGER], no_grid,
+                      no_grid.reshape((0, columns)), events, counters, F[PL.PF_LEDGER:PL.PF_DY],
+                      F[PL.PF_SCRATCH:PL.PF_SIZE])
+    if counters[AL.C_STATUS] != AL.STATUS_OK or _rebase_due(y):
+        return t, UNFINISHED, 0.0
+    row = F[PL.PF_ROW:PL.PF_ROW + columns]
+    paths_rhs(t, y, ms[0], P, ACT, F[PL.PF_DY:PL.PF_DY + L.N_STATE + n], F[PL.PF_AUX:PL.PF_ROW])
+    write_paths_sample(row, t, y, ms[0], F[PL.PF_AUX:PL.PF_ROW], P)
+    row[_PHI1] += turns1
+    row[_PHI3] += turns4
+    row[_PHI4] += turns4
+    _, ad, _ = crank_actuator(t, ACT)
+    return t, EVENTS if counters[AL.C_EVENTS] > 0 else DONE, ad
+
+
+@njit(cache=True, error_model='numpy', fastmath=FASTMATH, _nrt=False)
+def _rebase_due(y):
+    return (abs(math.floor(y[L.PHI1] / TWO_PI)) >= REBASE_TURNS
+            or abs(math.floor(y[L.PHI4] / TWO_PI)) >= REBASE_TURNS)
+
+
 @njit(cache=True, error_model='numpy', fastmath=FASTMATH)   # (the averaged kernels allocate)
 def averaged_period(t, dt, h_fixed, y, P, ACT, A, W1, M, R, j1e, S, grid, out, counters,
                     turns1, turns4, aux, ysample, row):
@@ -137,8 +178,10 @@ class PeriodStepper:
         self.sim = sim
         self.dt = float(dt)
         self.averaged = isinstance(sim, AveragedSimulator)
+        self.paths = isinstance(sim, PathsSimulator)
         # the hybrid period writes its sample into the Simulator's block (one per Simulator)
-        self.row = np.empty(N_COLUMNS) if self.averaged else sim._floats[F_ROW:F_SCRATCH]
+        self.row = (np.empty(N_COLUMNS) if self.averaged else sim._row if self.paths
+                    else sim._floats[F_ROW:F_SCRATCH])
         self.switches = NO_SWITCHES
         self.crank_rate = 0.0
         self._aux = np.empty(L.N_AUX)
@@ -157,6 +200,9 @@ class PeriodStepper:
                 t0, self.dt, sim.h_fixed, sim.y, sim.P, sim.ACT, m.a, m.w1, m.m, m.ratio,
                 sim.j1e, sim.S, sim._empty_grid, sim._empty_out, sim.counters, sim.turns_phi1,
                 sim.turns_phi4, self._aux, self._ysample, self.row)
+        elif self.paths:
+            sim.t, code, rate = paths_period(t0, self.dt, sim.h_fixed, self._floats, self._ints,
+                                             self._events, sim.turns_phi1, sim.turns_phi4)
         else:   # (the blocks and the events table are never rebound: kept at __init__)
             sim.t, code, rate = hybrid_period(t0, self.dt, sim.h_fixed, self._floats,
                                               self._ints, sim.LIN, self._events,

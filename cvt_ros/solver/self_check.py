@@ -27,23 +27,31 @@ def stray_band(values):
     return STRAY_BAND
 
 
-def stray_samples(rows, P, band):
+def stray_samples(rows, P, band, columns=None):
     """(count, time of the first) of the sample rows that stand outside their own clutch mode
     by more than ``band`` of the guard's scale: open with slip ω3 − ω2 below −band·(1 + |ω2| +
     |ω3|), engaged with the release guard below −band × the scene's torque scale (over c with
-    the twist rule)."""
+    the twist rule). ``columns``: the rows' column names (output.COLUMNS by default); an N-path
+    machine's rows are checked path by path (``engaged_k``, ``omega2_k``, ``clutch_torque_k``)."""
     if len(rows) == 0:
         return 0, None
-    engaged = rows[:, COL['engaged']] == 1.0
-    w2, w3 = rows[:, COL['omega2']], rows[:, COL['omega3']]
-    slip_out = (w3 - w2) < -band * (1.0 + np.abs(w2) + np.abs(w3))
-    torque = rows[:, COL['clutch_torque']]
+    col = COL if columns is None else {name: i for i, name in enumerate(columns)}
+    paths = [''] if 'engaged_1' not in col else [f'_{k}' for k in range(1, 9)
+                                                 if f'engaged_{k}' in col]
+    w3 = rows[:, col['omega3']]
     scale = P[L.P_TORQUE_SCALE]
-    if P[L.P_RELEASE] == L.RELEASE_TWIST and P[L.P_RIGID] == 0.0:
-        guard = np.maximum(rows[:, COL['twist']], torque / P[L.P_C])
-        torque_out = guard < -band * scale / P[L.P_C]
-    else:
-        torque_out = torque < -band * scale
-    out = np.where(engaged, torque_out, slip_out)
+    twist = P[L.P_RELEASE] == L.RELEASE_TWIST and P[L.P_RIGID] == 0.0
+    out = np.zeros(len(rows), dtype=bool)
+    for path in paths:
+        engaged = rows[:, col['engaged' + path]] == 1.0
+        w2 = rows[:, col['omega2' + path]]
+        slip_out = (w3 - w2) < -band * (1.0 + np.abs(w2) + np.abs(w3))
+        torque = rows[:, col['clutch_torque' + path]]
+        if twist:
+            guard = np.maximum(rows[:, col['twist']], torque / P[L.P_C])
+            torque_out = guard < -band * scale / P[L.P_C]
+        else:
+            torque_out = torque < -band * scale
+        out |= np.where(engaged, torque_out, slip_out)
     count = int(np.count_nonzero(out))
-    return count, (float(rows[np.argmax(out), COL['t']]) if count else None)
+    return count, (float(rows[np.argmax(out), col['t']]) if count else None)

@@ -25,7 +25,7 @@ from ..physics.linkage import (
 from ..physics.output_exact import modal_form
 from . import advance_layout as AL
 from . import hybrid
-from .output import COL, N_COLUMNS, write_sample
+from .output import COL, COLUMNS, N_COLUMNS, write_sample
 from .self_check import stray_band, stray_samples
 from .steppers import DOPRI5, RK4
 
@@ -44,12 +44,14 @@ class SimulationError(RuntimeError):
 
 @dataclass(slots=True)
 class ClutchSwitch:
-    """A located clutch event: time [s], mode after it, kind (release / engage / graze).
-    (slots: 72 bytes instead of 150, for runs that keep ~50 switches per simulated second)"""
+    """A located clutch event: time [s], the clutch's state after it, kind (release / engage /
+    engage_impact / graze), the guard where it was placed, and the path (1 … N) whose clutch it
+    is. (slots: 72 bytes instead of 150, for runs that keep ~50 switches per simulated second)"""
     t: float
     engaged: bool
     kind: str
     value: float = 0.0
+    path: int = 1
 
 
 @dataclass
@@ -66,9 +68,11 @@ class RunResult:
     diagnostics: dict = field(default_factory=dict)
     switch_count: int = 0                # releases and engagements (kept or not)
     graze_count: int = 0                 # grazing contacts (the guard touched zero, no switch)
+    columns: tuple = COLUMNS             # the samples' columns (output.path_columns for N ≥ 2)
+    switches_per_path: tuple = ()        # releases and engagements of each path's clutch
 
     def column(self, name):
-        return self.samples[:, COL[name]]
+        return self.samples[:, self.columns.index(name)]
 
 
 # The arrays the compiled period (period.py) reads live in one float64 and one int64 block, as
@@ -198,13 +202,16 @@ def resolution_warnings(values, exact_output, h_fixed):
             f"or model.fidelity rigid_shaft / averaged, runs in reasonable time"]
 
 
-def fixed_step(values):
+def fixed_step(values, steps_open_output=False):
     """rk4's step for these values: (h_stable, h_fixed, note, warning). h_stable = 0.5/λ for the
-    fastest rate the fixed step integrates (stepped_rates); h_fixed the step taken (solver.
-    fixed_step, refined to h_stable with solver.refine_step auto); note: one line saying so
-    ('' for dopri5); warning: a step beyond RK4's stability bound kept (refine_step off), or ''.
-    """
+    fastest rate the fixed step integrates (stepped_rates; with ``steps_open_output`` the open
+    clutch's output modes too: a core that steps them, the N-path one); h_fixed the step taken
+    (solver.fixed_step, refined to h_stable with solver.refine_step auto); note: one line saying
+    so ('' for dopri5); warning: a step beyond RK4's stability bound kept (refine_step off), or
+    ''."""
     rate, what = stepped_rates(values)[0]
+    if steps_open_output and open_output_rate(values) > rate:
+        rate, what = open_output_rate(values), "the open clutch's output mode"
     h_stable = RK4_STEP_BY_MODE / rate
     asked = values['solver.fixed_step']
     h_fixed = min(asked, h_stable) if values['solver.refine_step'] == 'auto' else asked
@@ -226,10 +233,20 @@ class Simulator:
     """The pulse CVT as a hybrid dynamical system with event-located integration.
 
     ``values``: scene parameters by dotted name (validated here). Time t [s] starts at 0.
+    One path: a machine of ``paths.count`` ≥ 2 runs on the N-path core, a PathsSimulator
+    (paths_simulator.py) with the same interface; fidelity.make_simulator makes either.
     """
+    columns = COLUMNS   # of the sample rows (output.py)
+    n_paths = 1
+    steps_open_output = False   # the open output runs apart from the fixed step (slip_watch.py)
 
     def __init__(self, values=None, events_capacity=4096):
         self.values = params_mod.validate(values or {})
+        if self.values['paths.count'] > 1:
+            raise params_mod.ParameterError(
+                'paths.count', f"{self.values['paths.count']} paths run on the N-path core: "
+                f"make the simulator with solver.fidelity.make_simulator(values) (or "
+                f"solver.paths_simulator.PathsSimulator), not Simulator")
         self._events_buf = np.zeros((events_capacity, AL.N_EVENT_COLUMNS))
         self._floats = np.zeros(F_SIZE)
         self._ints = np.zeros(I_SIZE, dtype=np.int64)
@@ -265,7 +282,7 @@ class Simulator:
     def reset(self):
         """Back to the scene's initial state (t = 0)."""
         v = self.values
-        self.P[:] = params_mod.parameter_vector(v)
+        self.P[:] = self._parameter_vector(v)
         self.t = 0.0
         self.ACT[:] = hold_profile(0.0, v['linkage.crank_length'])
         self.crank_length_target = v['linkage.crank_length']
@@ -280,6 +297,7 @@ class Simulator:
         self.turns_phi1 = 0.0       # angle folded out of φ1 and φ4 [rad]
         self.turns_phi4 = 0.0
         self.switch_count = 0
+        self.path_switch_counts = [0] * self.n_paths   # switches of each path's clutch
         self.event_count = 0        # switches and grazes
         self.first_late_event = None
         self.stray_count = 0        # samples of run() outside their clutch mode (self_check.py)
@@ -287,9 +305,14 @@ class Simulator:
         self._configure_steps()
         self._set_rocker_from_linkage()
         self._settle_clutch()
-        self.energy0 = self._energy()
+        # the energy the scene starts with: before a start-up impact, whose loss is booked
+        self.energy0 = self._energy() + self.ledger[0]
         # compile (or load from the on-disk cache) now, so that no run's wall time includes it
         self._call(self.t, self._empty_grid, self._empty_out)
+
+    @staticmethod
+    def _parameter_vector(values):
+        return params_mod.parameter_vector(values)
 
     def _configure_steps(self):
         usable, self.LIN, rate, ring = modal_form(self.P)
@@ -297,7 +320,8 @@ class Simulator:
         self.P[L.P_LINEAR_OUTPUT] = 1.0 if usable else 0.0
         self.P[L.P_OUTPUT_RATE] = rate
         self.P[L.P_OUTPUT_RING] = ring
-        self.h_stable, self.h_fixed, self.step_note, warning = fixed_step(self.values)
+        self.h_stable, self.h_fixed, self.step_note, warning = fixed_step(
+            self.values, self.steps_open_output)
         self.S[:] = settings_vector(self.values, self.h_fixed)
         self.warnings = resolution_warnings(self.values, usable, self.h_fixed)
         if warning:
@@ -392,6 +416,12 @@ class Simulator:
         the new set is invalid. A new crank length goes through the actuator; other changes act
         at once, the clutch mode is re-decided, and the stored energy's jump is booked."""
         new = params_mod.validate(dict(self.values, **changes))
+        for name in ('paths.count', 'paths.phase_offsets'):
+            if name in changes and new[name] != self.values[name]:
+                raise params_mod.ParameterError(
+                    name, f"{changes[name]!r} refused: a running machine does not grow a path "
+                          f"nor re-phase its cranks (now {self.values[name]!r}); start a new "
+                          f"simulation (reset) with the scene changed")
         changes = {k: new[k] for k in changes}
         target = changes.pop('linkage.crank_length', None)
         a_now = crank_actuator(self.t, self.ACT)[0]
@@ -402,7 +432,7 @@ class Simulator:
         check_crank_lengths_fit((('present', a_now), ('commanded', commanded)), *geometry)
         e_before = self._energy()
         self.values = new
-        self.P[:] = params_mod.parameter_vector(new)
+        self.P[:] = self._parameter_vector(new)
         self.P[L.P_A] = a_now
         if 'load.torque' in changes:
             self.load_torque_cmd = None
@@ -415,8 +445,10 @@ class Simulator:
         if self.P[L.P_FORMULATION] == L.FORMULATION_PAPER or any(
                 k.startswith('linkage.') or k == 'model.formulation' for k in changes):
             self._set_rocker_from_linkage()
+        lost = self.ledger[0]
         self._settle_clutch()
-        self.energy_injected += self._energy() - e_before
+        # what the change put in; an impact it causes is booked as such (ledger), not here
+        self.energy_injected += self._energy() - e_before + (self.ledger[0] - lost)
         self.h_io[:] = 0.0
         if target is not None:
             self.command_crank_length(target)
@@ -427,6 +459,10 @@ class Simulator:
                            self.h_io, grid, out, self._events_buf, self.counters, self.ledger,
                            self._scratch)
         self.t = t
+        return self._finish_call(objects)
+
+    def _finish_call(self, objects):
+        """After a compiled call: its events taken, a failure raised."""
         switches = self._take_events(objects)
         status = int(self.counters[AL.C_STATUS])
         if status in _FAILURES:
@@ -443,16 +479,25 @@ class Simulator:
             return []
         rows = self._events_buf[:n_ev]
         # one tolist() rather than four numpy scalars per row (~10 000 switches a run)
-        switches = [ClutchSwitch(row[AL.E_T], row[AL.E_MODE] == L.ENGAGED,
-                                 _KIND_NAMES[int(row[AL.E_KIND])], row[AL.E_VALUE])
-                    for row in (rows if objects else rows[-3:]).tolist()]
-        self.switch_count += int(np.count_nonzero(rows[:, AL.E_KIND] != KIND_GRAZE))
+        switches = self._switches_of((rows if objects else rows[-3:]).tolist())
+        switched = int(np.count_nonzero(rows[:, AL.E_KIND] != KIND_GRAZE))
+        self.switch_count += switched
+        self._count_path_switches(rows, switched)
         self.event_count += n_ev
         late = rows[rows[:, AL.E_LATE] > 0.0]
         if len(late) and self.first_late_event is None:
             self.first_late_event = float(late[0, AL.E_T])
         self.counters[AL.C_EVENTS] = 0
         return switches
+
+    @staticmethod
+    def _switches_of(rows):
+        """ClutchSwitch objects of event rows (lists of floats)."""
+        return [ClutchSwitch(row[AL.E_T], row[AL.E_MODE] == L.ENGAGED,
+                             _KIND_NAMES[int(row[AL.E_KIND])], row[AL.E_VALUE]) for row in rows]
+
+    def _count_path_switches(self, rows, switched):
+        self.path_switch_counts[0] += switched
 
     def _failure_text(self, status, switches):
         text = f"integration failed at t = {self.t:.9g} s: {_FAILURES[status]}"
@@ -523,6 +568,7 @@ class Simulator:
         late0 = int(self.counters[AL.C_LATE])
         switch0 = self.switch_count
         events0 = self.event_count
+        per_path0 = tuple(self.path_switch_counts)
         switches = []
         objects = keep_samples or on_switches is not None
         wall0 = time.perf_counter()
@@ -542,7 +588,7 @@ class Simulator:
             grid = t0 + sample_dt * np.arange(k_next, k_end + 1)
             if k_end == n_last and len(grid):
                 grid[-1] = min(grid[-1], t_stop)   # the grid ends exactly at T
-            out = np.empty((len(grid), N_COLUMNS))
+            out = np.empty((len(grid), len(self.columns)))
             self.counters[AL.C_NEXT_SAMPLE] = 0
             # rebasing between chunks shifts angles: the rows written in this chunk are
             # corrected by the offsets in force while they were written
@@ -558,7 +604,7 @@ class Simulator:
             block[:, COL['phi3']] += off4
             block[:, COL['phi4']] += off4
             k_next += len(block)
-            n_stray, t_stray = stray_samples(block, self.P, band)
+            n_stray, t_stray = stray_samples(block, self.P, band, self.columns)
             if n_stray:
                 strays += n_stray
                 first_stray = t_stray if first_stray is None else first_stray
@@ -598,11 +644,13 @@ class Simulator:
                        'first_possible_missed_event_s': self.first_late_event if late else None,
                        'stray_samples': strays, 'first_stray_sample_s': first_stray,
                        'solver': self.self_check()['solver'], 'warnings': warnings}
-        samples = np.concatenate(kept) if keep_samples else np.empty((0, N_COLUMNS))
+        samples = np.concatenate(kept) if keep_samples else np.empty((0, len(self.columns)))
         switched = self.switch_count - switch0
+        per_path = tuple(int(c) - int(c0) for c, c0 in zip(self.path_switch_counts, per_path0,
+                                                            strict=True))
         return RunResult(samples, switches, wall, int(self.counters[AL.C_STEPS]) - steps0,
                          int(self.counters[AL.C_REJECTED]) - rej0, energy, diagnostics,
-                         switched, self.event_count - events0 - switched)
+                         switched, self.event_count - events0 - switched, self.columns, per_path)
 
     def self_check(self):
         """The solver's self-check since reset() (docs/solver.md): which method and step,

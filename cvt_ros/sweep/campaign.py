@@ -23,9 +23,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from ..scenario.checks import number
-from ..scene import _yaml_number as yaml_number  # '1e-3' is a number, as ROS reads it
 from ..scene import shipped_file
-from ..yaml_file import read_yaml
+from ..yaml_file import numbers_in, read_yaml
 from .errors import CampaignError
 from .metrics import SCENARIO_METRICS, SCENE_METRICS, default_metrics
 from .variables import (
@@ -149,15 +148,6 @@ def _summary(value, where, names, metrics):
 TEXT_KEYS = ('name', 'description', 'scene', 'scenario', 'controller', 'sampling', 'record')
 
 
-def _numbers(node):
-    """YAML 1.1 reads 1e-3 and 1.0e5 (no sign, or no dot) as text: numbers, as in scene files."""
-    if isinstance(node, dict):
-        return {k: v if k in TEXT_KEYS else _numbers(v) for k, v in node.items()}
-    if isinstance(node, list):
-        return [_numbers(v) for v in node]
-    return yaml_number(node)
-
-
 def resolve_campaign(name):
     """A path, or a shipped campaign's name (config/campaigns/NAME.yaml), as scenes and
     scenarios are named; a missing file stays the path (read_yaml says it is missing)."""
@@ -180,7 +170,7 @@ def load_campaign(path):
     for key in doc:
         if key not in KEYS:
             raise unknown_key(where, key, KEYS)
-    doc = _numbers(doc)
+    doc = numbers_in(doc, TEXT_KEYS)   # (1e-3 is a number, as in scene files)
     if ('scene' in doc) == ('scenario' in doc):
         raise CampaignError(f"{where}: name either scene: (a plain run of a scene) or scenario: "
                             f"(a controller test scenario) as the base of every case")

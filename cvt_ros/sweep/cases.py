@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import parameters
-from ..control.speed_pi import SpeedPIGains
+from ..control.speed_pi import SpeedPIGains, reference_gains
 from ..physics.linkage import GrashofError
 from ..scene import SceneError, load_scene
 from .errors import CampaignError
@@ -37,6 +37,8 @@ class CaseTask:
 
     ``base`` + ``changes`` are the scene values (validated by build_tasks), or ``scenario`` is
     the case's Scenario (its ``controller_settings``: the case's reference-controller settings).
+    Any other ``kind`` runs ``function(task, deadline)`` → (figures, warnings): a case a room
+    above the sweep defines (a picklable callable: the design tools' operating points).
     """
     index: int
     case_id: str
@@ -52,6 +54,7 @@ class CaseTask:
     metrics: tuple = ()
     time_budget: float = 600.0
     record: str = ''                 # path of the case's recording (.csv / .mcap), '' for none
+    function: object = None          # kind 'call': what runs the case
 
     @property
     def values(self):
@@ -142,7 +145,17 @@ def _too_coarse(sample_dt, values):
             f"~80 a turn)")
 
 
+def _check_window(campaign, duration):
+    """A metric window that starts at or after the end of the run holds nothing to measure."""
+    window = campaign.window
+    if window != 'steady' and window and window >= duration:
+        raise CampaignError(f"{campaign.path}: window: start {window:g} s is at or after the "
+                            f"end of each case's run ({duration:g} s): the metrics would all "
+                            f"be NaN")
+
+
 def _scene_tasks(campaign, cases, out_dir):
+    _check_window(campaign, campaign.duration)
     try:
         base = load_scene(_relative(campaign, campaign.base), campaign.overrides)
     except (SceneError, GrashofError, parameters.ParameterError) as exc:
@@ -199,6 +212,7 @@ def _scenario_tasks(campaign, cases, out_dir):
         text = path.read_text(encoding='utf-8')
     except (ScenarioError, OSError) as exc:
         raise CampaignError(f"{campaign.path}: scenario: {exc}") from None
+    _check_window(campaign, first.duration)
     fixed_scene = {k: v for k, v in campaign.overrides.items() if not k.startswith('controller.')}
     fixed_gains = {k.partition('.')[2]: v for k, v in campaign.overrides.items()
                    if k.startswith('controller.')}
@@ -225,6 +239,8 @@ def _scenario_tasks(campaign, cases, out_dir):
         try:
             scenario = scenario_for(scene)
             SpeedPIGains(**gains).check()
+            if campaign.controller is None:   # the reference PI, within the crank limits
+                reference_gains(gains, scenario.crank_limits)
         except ScenarioError as exc:
             bad.append((index, variables, str(exc)))
             continue

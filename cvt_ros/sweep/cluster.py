@@ -3,10 +3,11 @@ address, the same code path for both.
 
 * :func:`open_cluster` — a LocalCluster with one single-threaded worker *process* per core (the
   kernels are compiled numba code holding the GIL: threads would not run cases in parallel), or
-  a Client of an existing scheduler (``tcp://HOST:8786``). Every worker, also one that joins or
-  is restarted later, loads the compiled kernels once (:class:`WarmKernels`; numba's on-disk
-  cache makes that ~1 s), so no case's wall time includes compilation. Workers must run the
-  same cvt_ros version as the client (checked).
+  a Client of an existing scheduler (``tls://HOST:8786`` with Dask's TLS security; plain
+  ``tcp://`` only on this machine, or with ``insecure``: :func:`check_scheduler`). Every
+  worker, also one that joins or is restarted later, loads the compiled kernels once
+  (:class:`WarmKernels`; numba's on-disk cache makes that ~1 s), so no case's wall time
+  includes compilation. Workers must run the same cvt_ros version as the client (checked).
 * :func:`run_campaign` — submits the cases that are not yet in the table, a bounded window of
   tasks at a time (memory stays flat on both sides however many cases there are), collects rows
   as they finish (any order), writes them in parts and merges the table at the end, or on
@@ -31,6 +32,7 @@ from dataclasses import dataclass
 
 from .. import __version__
 from .cases import build_tasks
+from .folder import CAMPAIGN, check_folder, write_own
 from .runner import killed_row, run_cases
 from .table import ResultStore, TableError, schema, variable_types
 
@@ -137,19 +139,110 @@ class ClusterHandle:
         self.close()
 
 
-def open_cluster(scheduler=None, workers=None, dashboard=':8787', timeout=60.0):
-    """A LocalCluster of ``workers`` single-threaded processes (default: one per core), or a
-    client of the scheduler at ``scheduler`` (waiting up to ``timeout`` s for ``workers``
-    workers, default 1). Raises SweepError."""
+def _loopback(host):
+    """True when every address ``host`` names is on this machine (127.0.0.0/8, ::1)."""
+    import ipaddress
+    import socket
+    if host in ('localhost', 'localhost.localdomain', 'ip6-localhost'):
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        pass
+    try:
+        found = {info[4][0] for info in socket.getaddrinfo(host, None)}
+    except (OSError, UnicodeError):
+        return False
+    return bool(found) and all(ipaddress.ip_address(a.split('%')[0]).is_loopback
+                               for a in found)
+
+
+def check_scheduler(address, security=None, insecure=False):
+    """The scheduler ``address`` as Dask takes it, checked before any connection: a
+    ``tcp://`` or ``tls://`` URL with a host and a port; ``tls://`` with a
+    :class:`distributed.security.Security` (``security``, or one from the Dask config that
+    holds a CA, a certificate and a key). Plain ``tcp://`` to a host other than this machine is
+    refused unless ``insecure``: whoever can reach that scheduler runs code on every worker.
+    Raises SweepError; returns (address, security or None)."""
+    from distributed.comm.addressing import parse_address, parse_host_port
+    text = str(address)
+    shown = text if len(text) <= 80 else f"{text[:80]}…"
+    try:
+        scheme, location = parse_address(text, strict=False)
+        host, port = parse_host_port(location)
+    except (ValueError, TypeError) as exc:
+        raise SweepError(f"--scheduler {shown!r}: not a scheduler address ({exc}); e.g. "
+                         f"tls://head-node:8786") from None
+    if scheme not in ('tcp', 'tls') or not host or not 0 < int(port) < 65536:
+        raise SweepError(f"--scheduler {shown!r}: expected tls://HOST:PORT (or tcp://HOST:PORT "
+                         f"on this machine), got protocol {scheme!r}, host {host!r}, port "
+                         f"{port!r}")
+    address = f"{scheme}://{location}"
+    if scheme == 'tls':
+        from distributed.security import Security
+        security = security if security is not None else Security()   # (the Dask config)
+        missing = [what for what, value in (('a CA (--tls-ca)', security.tls_ca_file),
+                                            ('a certificate (--tls-cert)',
+                                             security.tls_client_cert))
+                   if not value]
+        if missing:
+            raise SweepError(f"--scheduler {shown}: TLS needs {' and '.join(missing)}, or "
+                             f"distributed.comm.tls.ca-file / client.cert / client.key in the "
+                             f"Dask config (docs/sweeps.md)")
+        return address, security
+    if security is not None:
+        raise SweepError(f"--scheduler {shown}: TLS options given for a tcp:// address; use "
+                         f"tls://{location}")
+    if not _loopback(host):
+        if not insecure:
+            raise SweepError(f"--scheduler {shown}: plain TCP to another machine: anyone who "
+                             f"can reach that scheduler can run any code on its workers, and "
+                             f"the cases travel unencrypted. Use tls:// with --tls-ca, "
+                             f"--tls-cert, --tls-key (docs/sweeps.md), or --insecure on a "
+                             f"network only you use")
+        import warnings
+        warnings.warn(f"{shown}: plain TCP to another machine (--insecure): whoever can reach "
+                      f"the scheduler can run code on its workers", stacklevel=2)
+    return address, None
+
+
+def tls_security(ca=None, cert=None, key=None):
+    """A :class:`distributed.security.Security` from the three files (None if none is given;
+    the Dask config then decides). Raises SweepError for a missing or unreadable file."""
+    if not (ca or cert or key):
+        return None
+    from distributed.security import Security
+    for option, path in (('--tls-ca', ca), ('--tls-cert', cert), ('--tls-key', key)):
+        if option != '--tls-key' and not path:
+            raise SweepError(f"{option}: missing (TLS needs the CA, the certificate and its "
+                             f"key)")
+        if path and not os.path.isfile(path):
+            raise SweepError(f"{option} {path}: no such file")
+    try:
+        return Security(tls_ca_file=ca, tls_client_cert=cert, tls_client_key=key,
+                        require_encryption=True)
+    except (OSError, ValueError) as exc:
+        raise SweepError(f"--tls-ca/--tls-cert/--tls-key: cannot be used: {exc}") from None
+
+
+def open_cluster(scheduler=None, workers=None, dashboard='127.0.0.1:8787', timeout=60.0,
+                 security=None, insecure=False):
+    """A LocalCluster of ``workers`` single-threaded processes (default: one per core; its
+    scheduler listens on this machine only), or a client of the scheduler at ``scheduler``
+    (:func:`check_scheduler`: ``security`` for tls://; waiting up to ``timeout`` s for
+    ``workers`` workers, default 1). Raises SweepError."""
     import logging
+    import ssl
 
     import dask
     from distributed import Client, LocalCluster
 
     cluster = None
+    if scheduler:
+        scheduler, security = check_scheduler(scheduler, security, insecure)
     try:
         if scheduler:
-            client = Client(scheduler, timeout=timeout)
+            client = Client(scheduler, timeout=timeout, security=security)
         else:
             # the statistical profiler samples every worker thread 100 times a second: a few
             # per cent of a core, and nothing to see inside compiled kernels. A saturation of 1
@@ -164,7 +257,7 @@ def open_cluster(scheduler=None, workers=None, dashboard=':8787', timeout=60.0):
                                            dashboard_address=dashboard,
                                            silence_logs=logging.ERROR)
             client = Client(cluster)
-    except (OSError, TimeoutError, RuntimeError) as exc:
+    except (OSError, TimeoutError, RuntimeError, ValueError, ssl.SSLError) as exc:
         # (LocalCluster raises RuntimeError when it cannot start: e.g. a dashboard host that
         # does not resolve)
         if cluster is not None:
@@ -235,10 +328,12 @@ class Plan:
         return len(self.tasks) - len(self.todo)
 
 
-def plan_campaign(campaign, out_dir, *, tasks=None, retry_failed=False):
+def plan_campaign(campaign, out_dir, *, tasks=None, retry_failed=False, overwrite=False):
     """Check ``out_dir``'s table against the campaign and list the cases to run (no cluster
     needed). Raises CampaignError (a case that cannot run), TableError (the folder holds
-    another campaign's rows, or cannot be written)."""
+    another campaign's rows, files of the user's where the sweep writes its own — unless
+    ``overwrite`` — or cannot be written)."""
+    check_folder(out_dir, campaign, overwrite)
     tasks = build_tasks(campaign, out_dir) if tasks is None else tasks
     order = {t.case_id: t.index for t in tasks}
     store = ResultStore(out_dir, schema(campaign, variable_types(tasks,
@@ -267,7 +362,8 @@ def run_campaign(campaign, out_dir, handle=None, *, plan=None, retry_failed=Fals
     merged into the table before it propagates."""
     plan = plan or plan_campaign(campaign, out_dir, retry_failed=retry_failed)
     store, todo = plan.store, plan.todo
-    (store.dir / 'campaign.yaml').write_text(campaign.text, encoding='utf-8')
+    write_own(store.dir, CAMPAIGN, lambda path: path.write_text(campaign.text,
+                                                                 encoding='utf-8'))
     event = on_event or (lambda kind, info: None)
     event('start', {'total': len(plan.tasks), 'skipped': plan.skipped, 'todo': len(todo)})
     start = time.perf_counter()
@@ -403,5 +499,5 @@ def _collect(future, batch, killed, retry):
         return rows
 
 
-__all__ = ['CampaignRun', 'ClusterHandle', 'Plan', 'SweepError', 'WarmKernels', 'open_cluster',
-           'plan_campaign', 'run_campaign']
+__all__ = ['CampaignRun', 'ClusterHandle', 'Plan', 'SweepError', 'WarmKernels', 'check_scheduler',
+           'open_cluster', 'plan_campaign', 'run_campaign', 'tls_security']

@@ -180,7 +180,8 @@ def plot_summary(campaign, rows, path):
             _map(axes[0, k], fig, rows, x, y, *grid, metric, campaign.kind)
         _lines(axes[-1, k], fig, rows, x, y, grid, metric, campaign.kind, logs)
     notes = title_notes(campaign, rows, x, y)
-    fig.suptitle(f"{campaign.name}: " + ', '.join(notes), fontsize=10 if len(notes) > 3 else None)
+    name = campaign.name if len(campaign.name) <= 80 else f"{campaign.name[:80]}…"
+    fig.suptitle(f"{name}: " + ', '.join(notes), fontsize=10 if len(notes) > 3 else None)
     fig.savefig(path, dpi=DPI)
     plt.close(fig)
     return path

@@ -94,7 +94,14 @@ def _run_scenario(task, deadline):
         kind = 'diverged' if run.error.startswith('the simulation failed') else 'controller'
         raise CaseFailure(kind, run.error)
     energy = plant.sim.energy_balance() if hasattr(plant.sim, 'energy_balance') else {}
-    return scenario_metrics(run, energy, task.metrics, since=task.window), warnings
+    figures = scenario_metrics(run, energy, task.metrics, since=task.window)
+    since = task.window or 0.0   # (NaN figures: the table's warnings say why)
+    if not any(s['t'] >= since - 1e-9 for s in run.steps):
+        warnings.append(f"no set-point or load step from {since:g} s on (the run ends at "
+                        f"{run.duration:g} s): the step metrics are NaN")
+    elif all(v != v for k, v in figures.items() if k != 'energy_residual'):
+        warnings.append(f"no step metric could be computed from {since:g} s on")
+    return figures, warnings
 
 
 def _record_scenario(task, run):
@@ -117,7 +124,7 @@ def run_case(task):
     status, failure, error, warnings = 'ok', '', '', []
     figures = None
     try:
-        runner = _run_scene if task.kind == 'scene' else _run_scenario
+        runner = {'scene': _run_scene, 'scenario': _run_scenario}.get(task.kind, task.function)
         figures, warnings = runner(task, _deadline(task.time_budget, start))
     except CaseTimeout as exc:
         failure, error = 'timeout', str(exc)

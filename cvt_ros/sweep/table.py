@@ -44,7 +44,8 @@ def unit_of(name):
 
 def schema(campaign, variable_types):
     """The table's schema: ``variable_types`` name → 'number' | 'text' of the varied values."""
-    metrics = SCENE_METRICS if campaign.kind == 'scene' else SCENARIO_METRICS
+    metrics = getattr(campaign, 'metric_table', None) or (
+        SCENE_METRICS if campaign.kind == 'scene' else SCENARIO_METRICS)
     fields = [pa.field('case', pa.int64(), metadata={'unit': '-'}),
               pa.field('case_id', pa.string())]
     for name in campaign.variable_names:
@@ -80,15 +81,37 @@ def _table(rows, schema_):
 def _write(table, path):
     """Write ``table`` to ``path`` whole or not at all (temporary file, fsync, rename)."""
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    pq.write_table(table, tmp, compression='zstd')
-    with open(tmp, 'rb') as f:
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        pq.write_table(table, tmp, compression='zstd')
+        with open(tmp, 'rb') as f:
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except (OSError, pa.ArrowException) as exc:   # (disk full, quota, I/O error)
+        try:
+            tmp.unlink()
+        except OSError:
+            pass
+        raise TableError(f"cannot write {path}: {getattr(exc, 'strerror', None) or exc}"
+                         ) from None
 
 
 def read_rows(path):
-    """The rows of a results table or part (list of dicts)."""
-    return pq.read_table(path).to_pylist()
+    """The rows of a results table or part (list of dicts); TableError for a Parquet file that
+    is not one (no case_id column: not written by a sweep)."""
+    table = pq.read_table(path)
+    if 'case_id' not in table.column_names:
+        raise TableError(f"{path}: a Parquet file, but not a results table of cvt-sim sweep (no "
+                         f"case_id column); move it away or use another --out")
+    return table.to_pylist()
+
+
+def campaign_text(path):
+    """The campaign file's text a results table was written for ('' if none can be read)."""
+    try:
+        meta = pq.read_schema(path).metadata or {}
+        return meta.get(b'cvt_ros.campaign', b'').decode('utf-8')
+    except (OSError, pa.ArrowException, UnicodeDecodeError):
+        return ''
 
 
 class ResultStore:
@@ -100,6 +123,7 @@ class ResultStore:
         self.pending = []
         self.problems = []          # damaged parts skipped (their cases run again)
         self._next_part = 0
+        self._read_parts = []
 
     @property
     def path(self):
@@ -112,15 +136,20 @@ class ResultStore:
     def done(self):
         """case_id → row of every case already in the table or a part (a later part wins)."""
         rows = {}
+        self._read_parts = []
         for f in self._files():
             try:
                 found = read_rows(f)
-            except (OSError, pa.ArrowException) as exc:
+            except (OSError, pa.ArrowException, TableError) as exc:
                 if f == self.path:
+                    if isinstance(exc, TableError):
+                        raise
                     raise TableError(f"{f}: not a readable results table ({exc}); move it away "
                                      f"or use another --out") from None
-                self.problems.append(f"{f}: unreadable part skipped ({exc})")
+                self.problems.append(f"{f}: unreadable part skipped and kept ({exc})")
                 continue
+            if f != self.path:
+                self._read_parts.append(f)
             for row in found:
                 rows[row['case_id']] = row
         numbers = [int(f.stem.rpartition('-')[2]) for f in self._files()
@@ -155,7 +184,7 @@ class ResultStore:
         rows = [dict(row, case=order[cid]) for cid, row in self.done().items() if cid in order]
         rows.sort(key=lambda r: r['case'])
         _write(_table(rows, self.schema), self.path)
-        for f in sorted((self.dir / PARTS).glob('part-*.parquet')):
+        for f in self._read_parts:   # (merged; a part that could not be read stays)
             f.unlink()
         try:
             (self.dir / PARTS).rmdir()

@@ -6,6 +6,7 @@ from dataclasses import dataclass, fields
 
 from .. import parameters
 from ..control.speed_pi import SpeedPIGains
+from ..numbers import NotANumber, real_number
 from ..scenario.checks import number
 from .errors import CampaignError
 
@@ -73,6 +74,14 @@ def shown(value):
     return text if len(text) <= 60 else f"{text[:60]}…"
 
 
+def _real(v):
+    """A number as a float; inf for an integer beyond the float range (then refused as such)."""
+    try:
+        return real_number(v)
+    except NotANumber:
+        return math.inf
+
+
 def is_number(v):
     return isinstance(v, (int, float)) and not isinstance(v, bool)
 
@@ -96,7 +105,7 @@ def check_value(name, value, where):
     """One value of a varied or fixed parameter, checked by its spec; the coerced value."""
     if name.startswith('controller.'):
         setting = name.partition('.')[2]
-        if not is_number(value) or not math.isfinite(value):
+        if not is_number(value) or not math.isfinite(_real(value)):
             raise CampaignError(f"{where}: {name}: {shown(value)} is not a finite number")
         try:   # the setting's own bounds (≥ 0, > 0); crank_min < crank_max is checked per case
             SpeedPIGains(**{setting: value}).check()
@@ -172,7 +181,7 @@ def parse_variable(name, body, where, kind, controller, sampling):
     if not (isinstance(bounds, list) and len(bounds) == 2):
         raise CampaignError(f"{w}: range: expected [low, high], got {shown(bounds)}")
     for i, b in enumerate(bounds):
-        if not is_number(b) or not math.isfinite(b):
+        if not is_number(b) or not math.isfinite(_real(b)):
             raise CampaignError(f"{w}: range[{i}]: {shown(b)} is not a finite number")
     spec = parameters.SPECS.get(name)
     if spec is not None and (spec.choices or isinstance(spec.default, str)):
