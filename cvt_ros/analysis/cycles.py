@@ -59,11 +59,16 @@ def _hermite(s: np.ndarray, h: np.ndarray, p0: np.ndarray, p1: np.ndarray, m0: n
     return value, slope
 
 
-def cycle_boundaries(t: np.ndarray, phi1: np.ndarray, omega1: np.ndarray
+def cycle_boundaries(t: np.ndarray, phi1: np.ndarray, omega1: np.ndarray,
+                     turns: float | None = None
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Crossings of φ1 = 2πk: (times, sample index i with t[i] ≤ tb < t[i+1], fraction s in
-    [0, 1), k). Only forward crossings of a new, higher k count."""
+    [0, 1), k). Only forward crossings of a new, higher k count. ``turns``: the highest k
+    reached up to the first sample, when the samples are a part of a longer run (a run
+    analysed block by block: :mod:`.step_stream`)."""
     k = np.floor(phi1 / TWO_PI)
+    if turns is not None and len(k):
+        k[0] = max(k[0], turns)
     running = np.maximum.accumulate(k)
     idx = np.flatnonzero(running[1:] > running[:-1])
     if len(idx) and np.any(running[idx + 1] - running[idx] > 1):
@@ -222,13 +227,14 @@ def physical(name: str, value: float) -> bool:
     return True
 
 
-def cycle_metrics(trace: Trace) -> tuple[CycleTable, np.ndarray]:
-    """Split one run into crank cycles: (per-cycle table, cycle boundary times)."""
+def cycle_metrics(trace: Trace, turns: float | None = None) -> tuple[CycleTable, np.ndarray]:
+    """Split one run into crank cycles: (per-cycle table, cycle boundary times). ``turns``: see
+    :func:`cycle_boundaries`."""
     t = trace.t
     if np.any(np.diff(t) <= 0):
         raise AnalysisError('sample times are not increasing')
     phi1, w1 = trace.phi[:, 0], trace.omega[:, 0]
-    tb, idx, s, _ = cycle_boundaries(t, phi1, w1)
+    tb, idx, s, _ = cycle_boundaries(t, phi1, w1, turns)
     n_cyc = max(len(tb) - 1, 0)
     integ = Integrator(t)
     h = np.diff(t)

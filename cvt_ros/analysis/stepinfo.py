@@ -35,7 +35,8 @@ import numpy as np
 from .cycles import cycle_metrics
 from .trace import Trace
 
-__all__ = ['METRICS', 'StepEvent', 'step_metrics', 'summarize_steps']
+__all__ = ['METRICS', 'StepEvent', 'combine_steps', 'cycle_window_metrics', 'step_metrics',
+           'summarize_steps']
 
 SETTLING_BAND = 0.02     # ±2 %
 STEADY_FRACTION = 0.1    # steady-state error over the last 10 % of the window
@@ -119,21 +120,35 @@ def _window(trace, tm, t_start, t_end, y, r_mid, ref_t, ref, a, tc, ev, t_e):
     idx = np.arange(c0, max(c0, int(np.searchsorted(t_end, t_e, side='right'))))
     if not len(idx):
         return m
-    yw, tw = y[idx], tm[idx]
-    period = t_end[idx] - t_start[idx]
-    err = r_mid[idx] - yw
-    m['iae'] = float(np.sum(np.abs(err) * period))
-    m['max_deviation'] = float(np.max(np.abs(err)))
     # the set point in force at the end of the window (a step at t_e belongs to the next one)
     half = 0.5 * (ref_t[1] - ref_t[0]) if len(ref_t) > 1 else 0.0
     last = max(int(np.searchsorted(ref_t, t_e - half, side='right')) - 1, 0)
     rf = float(ref[last]) if t_e < ref_t[-1] else float(ref[-1])
-    n_ss = max(MIN_STEADY_CYCLES, int(math.ceil(STEADY_FRACTION * len(idx))))
-    if len(idx) >= n_ss:
-        m['steady_state_error'] = float(rf - np.mean(yw[-n_ss:]))
     before = int(np.searchsorted(t_end, ev.t, side='right'))   # cycles ended by the step
     y0 = float(y[before - 1]) if before and ev.kind != 'start' else \
         float(np.interp(ev.t, trace.t, trace.omega[:, 3]))
+    m.update(cycle_window_metrics(ev, tm[idx], t_start[idx], t_end[idx], y[idx], r_mid[idx],
+                                  rf, y0))
+    return m
+
+
+def cycle_window_metrics(ev: StepEvent, tw: np.ndarray, t_start: np.ndarray,
+                         t_end: np.ndarray, yw: np.ndarray, r_mid: np.ndarray, rf: float,
+                         y0: float) -> dict:
+    """The metrics of a step's window from its whole crank cycles (at least one: their middles
+    ``tw``, starts, ends, cycle-mean speeds ``yw`` and set points at the middles ``r_mid``),
+    the set point ``rf`` in force at the window's end and the speed ``y0`` before the step:
+    IAE, max deviation, steady-state error, rise time, overshoot, settling time (and the band
+    it is judged by)."""
+    m = {}
+    period = t_end - t_start
+    err = r_mid - yw
+    m['iae'] = float(np.sum(np.abs(err) * period))
+    m['max_deviation'] = float(np.max(np.abs(err)))
+    n = len(yw)
+    n_ss = max(MIN_STEADY_CYCLES, int(math.ceil(STEADY_FRACTION * n)))
+    if n >= n_ss:
+        m['steady_state_error'] = float(rf - np.mean(yw[-n_ss:]))
     delta = rf - y0
     tracking = ev.kind in ('start', 'setpoint')
     scale = abs(delta) if tracking else abs(rf)
@@ -149,8 +164,8 @@ def _window(trace, tm, t_start, t_end, y, r_mid, ref_t, ref, a, tc, ev, t_e):
         outside = np.flatnonzero(np.abs(yw - rf) > SETTLING_BAND * scale)
         if not len(outside):
             m['settling_time'] = 0.0
-        elif outside[-1] < len(idx) - MIN_STEADY_CYCLES:
-            m['settling_time'] = float(t_end[idx[outside[-1]]] - ev.t)
+        elif outside[-1] < n - MIN_STEADY_CYCLES:
+            m['settling_time'] = float(t_end[outside[-1]] - ev.t)
     return m
 
 
@@ -164,8 +179,19 @@ def summarize_steps(steps: list[dict], trace: Trace, reference_t: np.ndarray,
     then on, and the whole-run figures over [since, end] (e.g. without the start-up)."""
     start = float(trace.t[0])
     if since is not None and since > start:
-        steps = [s for s in steps if s['t'] >= since - 1e-9]
         start = since
+    whole = step_metrics(trace, reference_t, reference,
+                         [StepEvent(start, 'start', math.nan, math.nan)])[0]
+    return combine_steps(steps, whole, since, float(trace.t[0]))
+
+
+def combine_steps(steps: list[dict], whole: dict, since: float | None, first: float) -> dict:
+    """The run-level metrics of :func:`summarize_steps` from the steps and ``whole``, the
+    figures of one window [max(since, first), end] (IAE, peak clutch torque, crank travel,
+    switches per second); ``first``: the time of the run's first sample [s]."""
+    if since is not None and since > first:
+        steps = [s for s in steps if s['t'] >= since - 1e-9]
+
     def applies(step, name):
         """A step with nothing to follow (the set point as the speed already is) has no rise,
         overshoot or settling to be the worst of."""
@@ -180,8 +206,6 @@ def summarize_steps(steps: list[dict], trace: Trace, reference_t: np.ndarray,
         if not vals or any(math.isnan(v) for v in vals):
             return math.nan
         return max(vals, key=abs)
-    whole = step_metrics(trace, reference_t, reference,
-                         [StepEvent(start, 'start', math.nan, math.nan)])[0]
     return {
         'rise_time': worst('rise_time', ('start', 'setpoint')),
         'overshoot': worst('overshoot', ('start', 'setpoint')),
