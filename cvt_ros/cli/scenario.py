@@ -110,9 +110,10 @@ def run_command(args):
     if backend == 'dds':
         options = {'controller_cmd': args.controller_cmd, 'realtime': args.realtime}
     bar, progress = (None, None) if args.quiet else _progress(scenario.duration)
-    try:
-        run = run_scenario(scenario, args.controller, backend, progress=progress, **options)
-    except HarnessError as exc:
+    try:   # (the recording is written as the run goes)
+        run = run_scenario(scenario, args.controller, backend, progress=progress,
+                           mcap=args.mcap, overwrite=args.overwrite, **options)
+    except (HarnessError, RecordingError) as exc:
         return _fail(str(exc))
     finally:
         if bar is not None:
@@ -127,15 +128,14 @@ def run_command(args):
     try:
         written = _write_outputs(run, args, outputs)
     except OutputError as exc:
-        return _fail(f"{exc} (no output file was written)")
+        kept = f"only the recording {args.mcap}, made as the run went" if args.mcap else 'no'
+        return _fail(f"{exc} ({kept} output file was written)")
     for line in written:
         print(line)
     if args.mcap:
-        from ..scenario.recording import write_mcap
-        count, error = write_mcap(run, args.mcap, args.overwrite)
-        print(f"recording → {args.mcap} ({count} messages)")
-        if error is not None:
-            code = _fail(f"recording stopped: {error}", 1)
+        print(f"recording → {args.mcap} ({run.recording_count} messages)")
+        if run.recording_error is not None:
+            code = _fail(f"recording stopped: {run.recording_error}", 1)
     return code
 
 

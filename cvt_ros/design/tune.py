@@ -220,7 +220,7 @@ def tune(scene, overrides=None, settings=None, tau_c=None, setpoint_step=None, d
             scenario = load_scenario(path)
         except ScenarioError as exc:
             raise DesignError(f"the check's scenario: {exc}") from None
-        run = run_scenario(scenario, None, 'offline')
+        run = run_scenario(scenario, None, 'offline', keep_samples=True)   # (its whole trace)
     from ..analysis.cycles import cycle_metrics
     from ..solver.simulator import RunResult
     switches = [_Switch(t, e) for t, e in run.switches]

@@ -17,10 +17,11 @@ The protocol (docs/lockstep.md):
   period on the k·period grid — a load command on its own topic would race the crank command
   (two topics have no common order in DDS). Set-point changes live in the controller.
 
-The node records the run (``record.path``): the clutch switches are taken from its recording,
-at their own simulation times (``clutch_engaged`` carries no stamp: on the wire a switch is only
-known to lie in the period whose sample follows it), and in realtime its /diagnostics too: the
-node's timing (missed deadlines, jitter, resyncs) as ``node_timing``.
+The node records the run (``record.path``), and its recording is the run's trace, streamed
+after the run (``DdsPlant.replay``: every period's sample, the clutch switches at their own
+simulation times — ``clutch_engaged`` carries no stamp: on the wire a switch is only known to lie
+in the period whose sample follows it), and in realtime its /diagnostics too: the node's timing
+(missed deadlines, jitter, resyncs) as ``node_timing``.
 
 With ``controller_cmd`` the controller is an external process (e.g. ``cvt_speed_controller``),
 started with ROS_DOMAIN_ID of the run and CVT_SETPOINT_FILE naming a CSV of the set point per
@@ -146,7 +147,6 @@ class DdsPlant:
         self.lease = lease_domain() if domain is None else domain
         self.domain = self.lease.domain
         self.node_timing = None     # realtime: the node's timing (TIMING_KEYS), from its recording
-        self.diagnostics = []       # realtime: its /diagnostics messages, (t [s], CDR bytes)
         self.tmp = tempfile.TemporaryDirectory(prefix='cvt_scenario_')
         self.log = log or open(os.path.join(self.tmp.name, 'node.log'), 'w+')
         # realtime too starts in lockstep: the t = 0 sample and the handshake first, then the
@@ -350,45 +350,42 @@ class DdsPlant:
             self._sent = self._command
         return self._next_sample()
 
-    def recorded_samples(self, t_end):
-        """From the node's own recording up to ``t_end`` (it stops the node: SIGINT finishes the
-        file): realtime or an external controller, (every sample, every switch, the external
-        controller's commands or None) — the harness saw only the newest samples; lockstep,
-        (None, every switch, None) — it saw every sample, but each switch only with the sample
-        after it. Realtime also sets ``node_timing`` and ``diagnostics``."""
-        if not self.recording:
-            return None
+    def replay(self, t_end):
+        """The run from the node's own recording up to ``t_end`` [s] (it stops the node: SIGINT
+        finishes the file), in time order: ('sample', row), ('switch', (t, engaged)),
+        ('diagnostics', (t, CDR bytes)) and an external controller's ('command', (t, value)),
+        logged at the sample it answered. The harness saw the samples too (lockstep) or only
+        the newest (realtime, external controller), and each switch only with the sample after
+        it. Realtime also sets ``node_timing`` (from the last /diagnostics)."""
         from ..recording.reader import read_messages
         self._stop(self.proc)
         end_ns = round(t_end * 1e9)
-        rows, switches, engaged, commands = [], [], None, []
-        every = bool(self.realtime or self.external)
-        topics = ['/clutch_engaged'] + (['/joint_states', '/crank_length_cmd', '/diagnostics']
-                                        if every else [])
+        engaged, last_diagnostics = None, None
+        topics = ['/clutch_engaged', '/joint_states', '/crank_length_cmd', '/diagnostics']
         for m in read_messages(self.recording, topics, strict=False):
             if m.log_time_ns > end_ns:
                 break
-            if m.topic == '/crank_length_cmd':   # logged at the sample it answered
-                commands.append((m.log_time_ns * 1e-9, float64_value(m.data)))
+            if m.topic == '/crank_length_cmd':
+                if self.external:
+                    yield 'command', (m.log_time_ns * 1e-9, float64_value(m.data))
                 continue
-            if m.topic == '/diagnostics':
-                self.diagnostics.append((m.log_time_ns * 1e-9, m.data))
+            if m.topic == '/diagnostics':   # (realtime, external: the node's timing)
+                if self.skips_periods:
+                    last_diagnostics = m.data
+                    yield 'diagnostics', (m.log_time_ns * 1e-9, m.data)
                 continue
             if m.topic == '/clutch_engaged':
                 state = m.data[-1] == 1
                 if engaged is not None and state != engaged:   # (repeats are not switches)
-                    switches.append((m.log_time_ns * 1e-9, state))
+                    yield 'switch', (m.log_time_ns * 1e-9, state)
                 engaged = state
                 continue
             sample = self._decoder.decode(m.data)
             if self.rows is None:   # (the joint layout, if no sample was seen)
                 self.rows = self._sample_rows()
-            rows.append(self.rows.fill(*sample).copy())
-        if self.realtime and self.diagnostics:
-            self.node_timing = node_timing(self.diagnostics[-1][1])
-        if not every:
-            return None, switches, None
-        return np.array(rows), switches, (commands if self.external else None)
+            yield 'sample', self.rows.fill(*sample)
+        if self.realtime and last_diagnostics is not None:
+            self.node_timing = node_timing(last_diagnostics)
 
     @staticmethod
     def _stop(proc):

@@ -26,11 +26,12 @@ import numpy as np
 from ..control.measurement import ControllerError, Measurement
 from ..control.speed_pi import reference_controller
 from ..numbers import NotANumber, real_number, shown
-from ..solver.output import COL, N_COLUMNS
+from ..solver.output import COL
 from ..solver.simulator import SimulationError
 from .plants import OfflinePlant, plant_values
 from .realism import ActuatorModel, SensorModel
 from .result import ScenarioRun
+from .stream import RunStream
 
 BACKENDS = ('offline', 'lockstep', 'dds')
 CLAMP_TOLERANCE = 1e-12   # m: a limited command counts as clamped beyond rounding
@@ -98,10 +99,14 @@ def make_plant(backend, scenario, **options):
 
 
 def run_scenario(scenario, controller=None, backend='offline', progress=None, plant=None,
-                 **options):
+                 mcap=None, overwrite=False, keep_samples=None, metrics_since=None, **options):
     """Run ``scenario`` with ``controller`` (a callable, a ``MODULE:FACTORY`` string, or None for
     the reference controller) on ``backend``; returns a :class:`ScenarioRun` (metrics included).
-    ``progress(done_s, total_s)`` is called about every 1 % of the run."""
+    ``progress(done_s, total_s)`` is called about every 1 % of the run. The run streams
+    (scenario/stream.py): ``mcap``, a file to record it to as it goes (``overwrite`` an existing
+    one); ``keep_samples`` True keeps every period's sample whatever the length (None: up to
+    KEEP_PERIODS periods, a thinned trace beyond); ``metrics_since``, a start time [s] whose
+    run-level metrics ``run.metrics_since(t)`` gives besides the whole run's."""
     name = REFERENCE if controller is None else getattr(controller, '__qualname__', None) \
         or type(controller).__name__
     external = options.get('controller_cmd')
@@ -118,10 +123,21 @@ def run_scenario(scenario, controller=None, backend='offline', progress=None, pl
         controller = load_controller(controller, scenario)
     if plant is None:
         plant = make_plant(backend, scenario, **options)
+    recording = None
     try:
-        return _loop(scenario, controller, plant, str(name), progress)
+        if mcap is not None:
+            from .recording import ScenarioRecording
+            realtime = getattr(plant, 'realtime', None)
+            recording = ScenarioRecording(scenario, mcap, overwrite, plant.name if not realtime
+                                          else f"{plant.name}, realtime {realtime:g}x")
+        stream = RunStream(scenario, recording, keep_samples,
+                           () if metrics_since is None else (metrics_since,),
+                           replay=hasattr(plant, 'replay'))
+        return _loop(scenario, controller, plant, str(name), progress, stream)
     finally:
         plant.close()
+        if recording is not None:   # (closed by the stream's end; here if the run raised)
+            recording.recorder.close()
 
 
 def _schedule_chunk(scenario, k0):
@@ -137,23 +153,22 @@ def _external(measurement):
     return None
 
 
-def _loop(scenario, controller, plant, controller_name, progress):
+def _loop(scenario, controller, plant, controller_name, progress, stream):
     n = scenario.periods
     dt = scenario.control_period
     # the schedules are sampled a chunk of periods at a time (a day-long run never holds its
-    # whole grid as Python floats), and the samples' rows are memory only once written
+    # whole grid as Python floats); the samples and commands go through the stream a block at
+    # a time (rows[k - base]: period k), its metrics, recording, plot and kept trace
     setpoints, loads, chunk_end = _schedule_chunk(scenario, 0)
     chunk0 = 0
     limits = scenario.crank_limits
-    rows = np.empty((n + 1, N_COLUMNS))
-    commands = np.full(n + 1, np.nan)
-    switches = []
     sensors = SensorModel(scenario.sensors, dt, scenario.seed)
     # without a sensor model the measurement is the sample itself (the model's identity), made
     # as the tuple it is (Measurement's own __new__ is one more Python call per period)
     observe = sensors.observe if scenario.sensors.enabled else None
     row = plant.start()            # (a node process starts here: not in the wall time)
-    rows[0] = row
+    rows, commands = stream.start(row)
+    block, base, switches = stream.block, 0, []
     wall0 = time.perf_counter()
     actuator = ActuatorModel(scenario.actuator, float(row[_A]))
     previous = float(row[_A])      # last command after the limiter [m], and its period
@@ -164,9 +179,6 @@ def _loop(scenario, controller, plant, controller_name, progress):
     error = exception = None
     every = max(1, n // 100)
     skips = getattr(plant, 'skips_periods', False)   # realtime: the newest sample only
-    sampled = np.zeros(n + 1, dtype=bool) if skips else None   # (periods with a sample)
-    if skips:
-        sampled[0] = True
     k = 0
     try:
         # (locals, not attributes or globals: this loop is a good part of a period's cost)
@@ -210,16 +222,17 @@ def _loop(scenario, controller, plant, controller_name, progress):
                 if abs(limited - a) > CLAMP_TOLERANCE:
                     clamped += 1
                 previous, k_previous = limited, k
-                commands[k] = limited
+                commands[k - base] = limited
                 passed = actuator.command(limited)
                 if passed is not None and passed != sent:
                     sent = passed
                     plant.command_crank_length(passed)
             row, sw = step()
             k_next = min(max(k + 1, int(round(row[0] / dt))), n) if skips else k + 1
-            rows[k_next] = row
-            if skips:
-                sampled[k_next] = True
+            while k_next - base >= block:   # (a realtime run may skip past a whole block)
+                stream.flush(base, block, switches)
+                base, switches = base + block, []
+            rows[k_next - base] = row
             if sw:
                 switches.extend(sw)
             if progress is not None and k // every != k_next // every:
@@ -231,34 +244,17 @@ def _loop(scenario, controller, plant, controller_name, progress):
         error = f"the simulation failed in period {k}: {exc}"
     except KeyboardInterrupt:
         error = f"interrupted at t = {k * dt:.6f} s (period {k})"
-    wall = time.perf_counter() - wall0
-    keep = np.flatnonzero(sampled[:k + 1]) if skips else np.arange(k + 1)   # (samples seen)
-    samples = rows[:k + 1] if len(keep) == k + 1 else rows[keep]   # (a view: no second copy)
-    # the sample times as the stamps carry them (whole ns, as the controller saw them): offline's
-    # t is a running sum of periods (12.344999999998597 for 12.345), dds's a stamp, and the
-    # metrics are computed from these times
-    samples[:, 0] = np.round(samples[:, 0] * 1e9) * 1e-9
-    recorded = plant.recorded_samples(k * dt) if hasattr(plant, 'recorded_samples') else None
-    if recorded is not None and recorded[0] is None:
-        switches = recorded[1]   # dds lockstep: the switches at their own times (its recording)
-    elif recorded is not None and len(recorded[0]):
-        # realtime: the device's own recording has every period; the controller saw `keep`
-        samples, switches, external = recorded
-        keep = np.clip(np.round(samples[:, 0] / dt).astype(int), 0, n)
-        if external is not None:   # what an external controller sent, at the sample it answered
-            commands = np.full(n + 1, np.nan)
-            for t, value in external:
-                commands[min(int(round(t / dt)), n)] = value
+    wall = time.perf_counter() - wall0 - stream.busy   # (the loop's: metrics, recording apart)
+    stream.flush(base, k - base + 1, switches)
+    if stream.replay_mode:
+        # dds: the node's own recording is the trace (every period; each switch at its time)
+        stream.replay(plant.replay(k * dt))
     # the solver's self-check where the plant runs in this process (a node over DDS reports it
     # on its /diagnostics and in its own recording)
     self_check = plant.self_check() if hasattr(plant, 'self_check') else None
-    grid = keep * dt   # (k·period: the same numbers as the chunks the loop read)
     return ScenarioRun(scenario=scenario, backend=plant.name, controller=controller_name,
-                       samples=samples, setpoint=scenario.setpoint.sample(grid),
-                       load=scenario.load.sample(grid),
-                       commands=commands[keep], switches=switches, clamped=clamped,
-                       wall_time=wall, error=error, exception=exception,
+                       clamped=clamped, wall_time=wall, error=error, exception=exception,
                        realtime=getattr(plant, 'realtime', None),
                        domain=getattr(plant, 'domain', None),
-                       node_timing=getattr(plant, 'node_timing', None),
-                       diagnostics=list(getattr(plant, 'diagnostics', ())), self_check=self_check)
+                       node_timing=getattr(plant, 'node_timing', None), self_check=self_check,
+                       **stream.finish(self_check))

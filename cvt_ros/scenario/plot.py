@@ -1,23 +1,9 @@
-"""The one picture of a scenario run: set point vs speed, crank command vs actual, load, clutch."""
+"""The one picture of a scenario run: set point vs speed, crank command vs actual, load, clutch.
+
+Drawn from the run's outline (scenario/stream.py): each signal raw for a short run, else its min
+and max in each of 4000 columns, made as the run went — a day-long run draws from as many
+points as a minute-long one, and a pulse or a peak stays visible as a band."""
 import math
-
-import numpy as np
-
-from ..analysis.cycles import cycle_metrics
-
-MAX_POINTS = 4000     # raw traces are thinned to min/max envelopes of this many points
-
-
-def _envelope(t, y, points=MAX_POINTS):
-    """Min/max per bucket, so a 60 000-sample ripple draws as the band it is."""
-    n = len(t)
-    if n <= 2 * points:
-        return t, y
-    k = n // points
-    m = (n // k) * k
-    tt = t[:m].reshape(-1, k)[:, 0]
-    yy = y[:m].reshape(-1, k)
-    return np.repeat(tt, 2), np.column_stack([yy.min(axis=1), yy.max(axis=1)]).ravel()
 
 
 def _settling_bands(ax, steps):
@@ -38,53 +24,59 @@ def _settling_bands(ax, steps):
         label = None
 
 
+def _draw(ax, outline, name, steps=False, scale=1.0, **style):
+    """One signal of the outline: a step plot of the raw points, else its envelope."""
+    t, y = outline.get(name)
+    if outline.raw and steps:
+        return ax.step(t, y * scale, where='post', **style)
+    return ax.plot(t, y * scale, **style)
+
+
 def plot_run(run, path):
     """Write the PNG of ``run`` (a ScenarioRun) to ``path``; returns ``path``."""
     import matplotlib
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
-    t = run.t
-    table = cycle_metrics(run.trace())[0] if len(t) > 2 else None
+    outline = run.outline
+    cycles = len(outline.get('cycle_speed')[0]) > 0
     fig, axes = plt.subplots(4, 1, sharex=True, figsize=(11, 10),
                              gridspec_kw={'height_ratios': [3, 2, 1.2, 1.6]})
     ax = axes[0]
-    tr, wr = _envelope(t, run.column('omega4'))
-    ax.plot(tr, wr, color='0.75', lw=0.5, label='ω4 (raw: pulses at the clutch frequency)')
-    if table is not None and len(table):
-        tm = table['t_start'] + 0.5 * table['period']
-        ax.plot(tm, table['output_speed'], color='C0', lw=1.8, label='ω4, mean per crank turn')
-    ax.step(t, run.setpoint, where='post', color='C3', ls='--', lw=1.3, label='set point')
+    _draw(ax, outline, 'omega4', color='0.75', lw=0.5,
+          label='ω4 (raw: pulses at the clutch frequency)')
+    if cycles:
+        _draw(ax, outline, 'cycle_speed', color='C0', lw=1.8, label='ω4, mean per crank turn')
+    _draw(ax, outline, 'setpoint', steps=True, color='C3', ls='--', lw=1.3, label='set point')
     _settling_bands(ax, run.steps)
     ax.set_ylabel('output speed [rad/s]')
     ax.legend(loc='best', fontsize=8)
 
     ax = axes[1]
     # the actuator under the command: where it follows, the command stays visible on top
-    ax.plot(t, run.column('crank_length') * 1e3, color='C2', lw=2.4, alpha=0.55,
-            label='crank length (actuator)')
-    ax.step(t, run.held_commands() * 1e3, where='post', color='C1', lw=1.1, ls=(0, (4, 2)),
-            label='crank length command')
+    _draw(ax, outline, 'crank_length', scale=1e3, color='C2', lw=2.4, alpha=0.55,
+          label='crank length (actuator)')
+    _draw(ax, outline, 'command', steps=True, scale=1e3, color='C1', lw=1.1, ls=(0, (4, 2)),
+          label='crank length command')
     lim = run.scenario.crank_limits
-    top = np.nanmax(run.column('crank_length'))
-    if top > 0.8 * lim.max:     # the limit only when the crank comes near it
+    if outline.top('crank_length') > 0.8 * lim.max:   # the limit only when the crank comes near
         ax.axhline(lim.max * 1e3, color='0.6', ls=':', lw=0.8, label='crank limit')
     ax.set_ylabel('crank length [mm]')
     ax.legend(loc='best', fontsize=8)
 
     ax = axes[2]
-    ax.step(t, run.load, where='post', color='C4', lw=1.2, label='load torque (schedule)')
+    _draw(ax, outline, 'load', steps=True, color='C4', lw=1.2, label='load torque (schedule)')
     ax.set_ylabel('load [N·m]')
     ax.legend(loc='best', fontsize=8)
 
     ax = axes[3]
-    if table is not None and len(table):
-        ax.plot(tm, table['clutch_torque_peak'], color='C5', lw=1.0,
-                label='peak clutch torque per turn')
+    if cycles:
+        _draw(ax, outline, 'cycle_clutch_peak', color='C5', lw=1.0,
+              label='peak clutch torque per turn')
         ax.set_ylabel('clutch torque [N·m]')
         ax2 = ax.twinx()
-        ax2.plot(tm, table['engaged_fraction'], color='C7', lw=0.9,
-                 label='engaged fraction per turn')
+        _draw(ax2, outline, 'cycle_engaged', color='C7', lw=0.9,
+              label='engaged fraction per turn')
         ax2.set_ylim(-0.05, 1.05)
         ax2.set_ylabel('engaged fraction')
         h1, l1 = ax.get_legend_handles_labels()

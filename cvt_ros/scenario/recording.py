@@ -3,7 +3,11 @@ control period, clutch_engaged at each switch's exact time, /clock, the crank-le
 controller gave and the load commands of the schedule at the period they took effect, and the
 set point on ``/setpoint`` (std_msgs/Float64, at t = 0 and at each change), and of a realtime
 run over DDS the node's /diagnostics (its timing: missed deadlines, jitter). ``cvt-sim analyze``,
-``cvt-sim replay`` and the mcap/rosbags libraries read it like any recording of the node."""
+``cvt-sim replay`` and the mcap/rosbags libraries read it like any recording of the node.
+
+:class:`ScenarioRecording` writes it block by block as the run goes (``run_scenario(...,
+mcap=PATH)``: the harness's stream, scenario/stream.py); :func:`write_mcap` writes a finished run
+that kept every sample."""
 import numpy as np
 
 from ..analysis.bag import SETPOINT_TOPIC
@@ -16,30 +20,38 @@ SETPOINT_TYPE = 'std_msgs/msg/Float64'
 SETPOINT_QOS = dict(QOS['crank_length_cmd'])
 
 
-def write_mcap(run, path, overwrite=False):
-    """Write ``run`` (a ScenarioRun) to ``path``; returns (messages, error or None)."""
-    errors = []
-    sc = run.scenario
-    try:
+class ScenarioRecording:
+    """The recording of one scenario run, fed block by block (:meth:`block`, in time order).
+    Raises RecordingError if the file cannot be created; an I/O error later stops the recording
+    (``error``), not the run."""
+
+    def __init__(self, scenario, path, overwrite=False, backend_text=''):
+        self.errors = []
         check_target(path, overwrite)
-        recorder = SimulationRecorder(
-            path, parameters=dict(run.scenario.values), scene=str(sc.scene),
-            source=f"cvt-sim scenario run {sc.path} ({run.backend_text})", overwrite=overwrite,
+        self.recorder = SimulationRecorder(
+            path, parameters=dict(scenario.values), scene=str(scenario.scene),
+            source=f"cvt-sim scenario run {scenario.path} ({backend_text})", overwrite=overwrite,
             extra_topics=[(SETPOINT_TOPIC, SETPOINT_TYPE, SETPOINT_QOS)],
-            on_error=errors.append)
-    except RecordingError as exc:
-        return 0, exc
-    samples = run.samples
-    t = samples[:, COL['t']]
-    commands = run.commands
-    load_change = np.flatnonzero(np.diff(run.load) != 0) + 1
-    setpoint_change = set((np.flatnonzero(np.diff(run.setpoint) != 0) + 1).tolist()) | {0}
-    load_change = set(load_change.tolist())
-    switches = run.switches
-    diagnostics = run.diagnostics
-    count, j, d = 0, 0, 0
-    with recorder:
-        count += recorder.record_clutch_state(bool(samples[0, COL['engaged']]), t[0])
+            on_error=self.errors.append)
+        self.count = 0
+        self.stopped = False
+        self.setpoint = self.load = None   # the last sample's (a change is recorded)
+
+    @property
+    def error(self):
+        return self.errors[0] if self.errors else None
+
+    def block(self, samples, setpoint, load, commands, switches, diagnostics):
+        """Samples (rows) with the schedules and the command given at each (NaN: none), and the
+        switches ((t, engaged)) and /diagnostics ((t, CDR bytes)) up to the last sample."""
+        if self.stopped:
+            return
+        recorder = self.recorder
+        count, j, d = 0, 0, 0
+        if self.setpoint is None:
+            count += recorder.record_clutch_state(bool(samples[0, COL['engaged']]),
+                                                  samples[0, COL['t']])
+        given = np.isfinite(commands)
         for k, row in enumerate(samples):
             ns = stamp_ns(row[0])
             while j < len(switches) and stamp_ns(switches[j][0]) <= ns:
@@ -50,14 +62,39 @@ def write_mcap(run, path, overwrite=False):
                                         stamp_ns(diagnostics[d][0]))
                 d += 1
             if not recorder.record_sample(row):
+                self.stopped = True
                 break
             count += 1 + recorder.record_clock(row[0])
-            if k in setpoint_change:
-                count += recorder.write(SETPOINT_TOPIC, float64_cdr(run.setpoint[k]), ns)
-            if k in load_change:
-                count += recorder.record_command('load_torque_cmd', float(run.load[k]), row[0])
-            if k < len(commands) and np.isfinite(commands[k]):
+            if setpoint[k] != self.setpoint:
+                count += recorder.write(SETPOINT_TOPIC, float64_cdr(setpoint[k]), ns)
+                self.setpoint = setpoint[k]
+            if self.load is not None and load[k] != self.load:
+                count += recorder.record_command('load_torque_cmd', float(load[k]), row[0])
+            self.load = load[k]
+            if given[k]:
                 count += recorder.record_command('crank_length_cmd', float(commands[k]), row[0])
-        if run.self_check is not None:
-            recorder.record_self_check(run.self_check)
-    return count, (errors[0] if errors else None)
+        self.count += count
+
+    def finish(self, self_check=None):
+        """Close the file (the solver's self-check in its metadata); (messages, error or None)."""
+        if self_check is not None:
+            self.recorder.record_self_check(self_check)
+        self.recorder.close()
+        return self.count, self.error
+
+
+def write_mcap(run, path, overwrite=False):
+    """Write ``run`` (a ScenarioRun that kept every sample) to ``path``; returns (messages,
+    error or None). A long run keeps a thinned trace: record it as it runs
+    (``run_scenario(..., mcap=PATH)``)."""
+    if run.sample_stride != 1:
+        return 0, RecordingError(f"{path}: the run kept every {run.sample_stride}th sample "
+                                 f"only; record it while it runs (run_scenario(..., mcap=PATH), "
+                                 f"cvt-sim scenario run --mcap)")
+    try:
+        recording = ScenarioRecording(run.scenario, path, overwrite, run.backend_text)
+    except RecordingError as exc:
+        return 0, exc
+    recording.block(run.samples, run.setpoint, run.load, run.commands, run.switches,
+                    run.diagnostics)
+    return recording.finish(run.self_check)

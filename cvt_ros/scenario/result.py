@@ -1,4 +1,10 @@
-"""A finished scenario run: its trace, its metrics, and the ways out (JSON, table, MCAP, plot)."""
+"""A finished scenario run: its trace, its metrics, and the ways out (JSON, table, MCAP, plot).
+
+A run keeps every period's sample up to KEEP_PERIODS periods (or with ``keep_samples=True``),
+else every ``sample_stride``-th one (scenario/stream.py). Its step metrics come from the whole
+trace while it keeps every sample (stepinfo on the trace: the numbers a run always gave, to the
+bit), else from the stream's (analysis/step_stream.py: the same figures, made as the run went,
+the sums in another order — equal to rounding, test_scenario_stream.py)."""
 import json
 import math
 from dataclasses import dataclass, field
@@ -6,7 +12,7 @@ from functools import cached_property
 
 import numpy as np
 
-from ..analysis.stepinfo import METRICS, StepEvent, step_metrics, summarize_steps
+from ..analysis.stepinfo import METRICS, step_metrics, summarize_steps
 from ..analysis.trace import Trace
 from ..solver.output import COL
 
@@ -16,7 +22,11 @@ class ScenarioRun:
     """``samples``: (n+1, COLUMNS) plant samples at t_k = k·period (the true state, not the
     sensed one); ``setpoint``, ``load``: the schedules at t_k; ``commands``: the crank-length
     command of period k after the limiter (NaN: the controller kept the last one); ``switches``:
-    (t, engaged) clutch switches; ``error``: why the run stopped early (None: it ran to the end);
+    (t, engaged) clutch switches. A run longer than KEEP_PERIODS periods (scenario/stream.py)
+    keeps every ``sample_stride``-th sample only (t_k, k a multiple of the stride), the schedules
+    there, the command *in force* there (held: no NaN after the first), and no switches
+    (``switch_count`` counts them); its metrics, plot and ``--mcap`` recording are of every
+    period all the same. ``error``: why the run stopped early (None: it ran to the end);
     ``exception``: what the controller raised, with its traceback (None otherwise); dds back end:
     ``domain`` (the node's ROS domain), and against the wall clock ``node_timing`` (the node's
     missed deadlines, resyncs, jitter and step time from its last /diagnostics: TIMING_KEYS of
@@ -39,6 +49,11 @@ class ScenarioRun:
     diagnostics: list = field(default_factory=list)   # dds, realtime: the node's /diagnostics
     # the solver's self-check (Simulator.self_check(); None: the plant ran in another process)
     self_check: dict = None
+    sample_stride: int = 1      # 1: every period's sample; k: every k-th (a long run)
+    summary: object = None      # the stream's metrics and counts (stream.RunSummary)
+    outline: object = None      # the plot's bounded signals (stream.Outline)
+    recording_count: int = 0    # run_scenario(mcap=...): messages recorded
+    recording_error: Exception = None   # ... and the error that stopped the recording
 
     @property
     def possible_missed_events(self):
@@ -59,7 +74,13 @@ class ScenarioRun:
 
     @property
     def duration(self):
-        return float(self.t[-1] - self.t[0]) if len(self.t) else 0.0
+        """Simulated time from the first sample to the last [s]."""
+        return float(self.summary.duration)
+
+    @property
+    def switch_count(self):
+        """Clutch switches in the run (``switches`` holds them unless the run was thinned)."""
+        return self.summary.switch_count
 
     @property
     def real_time_factor(self):
@@ -74,6 +95,8 @@ class ScenarioRun:
 
     def held_commands(self):
         """The command in force in each period (the last one given; NaN before the first)."""
+        if self.sample_stride != 1:   # (a thinned run keeps the command in force)
+            return self.commands.copy()
         c = self.commands.copy()
         idx = np.where(np.isfinite(c), np.arange(len(c)), 0)
         np.maximum.accumulate(idx, out=idx)
@@ -84,7 +107,12 @@ class ScenarioRun:
         return held
 
     def trace(self):
-        """The run as an analysis Trace (true state, exact switch times)."""
+        """The run as an analysis Trace (true state, exact switch times); a run that kept every
+        sample only."""
+        if self.sample_stride != 1:
+            raise ValueError(f"{self.scenario.name}: the run kept every "
+                             f"{self.sample_stride}th sample of its {self.scenario.periods} "
+                             f"periods; run_scenario(..., keep_samples=True) keeps them all")
         s = self.samples
         sw_t = np.array([t for t, _ in self.switches], dtype=float)
         sw_on = np.array([e for _, e in self.switches], dtype=bool)
@@ -100,21 +128,20 @@ class ScenarioRun:
 
     def events(self):
         """The steps the loop had to answer: the start, each set-point and load change."""
-        sc = self.scenario
-        end = float(self.t[-1]) if len(self.t) else 0.0
-        evs = [StepEvent(0.0, 'start', float(self.column('omega4')[0]), sc.setpoint.initial)]
-        for kind, sched in (('setpoint', sc.setpoint), ('load', sc.load)):
-            changes = [c for c in sched.changes if c.at < end]
-            # (every change's levels in one call each: per change, it was quadratic)
-            before = sched.sample(np.array([c.at - 1e-12 for c in changes]))
-            after = sched.sample(np.array([c.end for c in changes]))
-            evs += [StepEvent(c.at, kind, float(b), float(a))
-                    for c, b, a in zip(changes, before, after, strict=True)]
-        return sorted(evs, key=lambda e: (e.t, e.kind != 'setpoint'))
+        from .stream import step_events
+        start_speed = self.column('omega4')[0] if len(self.samples) else math.nan
+        return step_events(self.scenario, start_speed, self.summary.last_t)
+
+    @property
+    def whole_trace(self):
+        """True while the run kept every sample: its metrics come from its whole trace."""
+        return self.sample_stride == 1
 
     @cached_property
     def steps(self):
         """Per-step metrics (list of dicts; :mod:`cvt_ros.analysis.stepinfo`)."""
+        if not self.whole_trace:
+            return self.summary.steps
         if len(self.t) < 3:
             return []
         return step_metrics(self.trace(), self._grid(), self.setpoint, self.events())
@@ -131,7 +158,11 @@ class ScenarioRun:
 
     def metrics_since(self, t):
         """Run-level metrics over the steps from ``t`` [s] on (the whole-run figures over
-        [t, end]): e.g. the set-point steps without the start-up from rest; None: all."""
+        [t, end]): e.g. the set-point steps without the start-up from rest; None: all. ``t``
+        other than None is named before a run that keeps a thinned trace (longer than
+        KEEP_PERIODS periods): ``run_scenario(..., metrics_since=t)``."""
+        if not self.whole_trace:
+            return self.summary.metrics_since(t)
         if len(self.t) < 3:
             return dict.fromkeys(METRICS, math.nan)
         return summarize_steps(self.steps, self.trace(), self._grid(), self.setpoint, since=t)
@@ -141,7 +172,7 @@ class ScenarioRun:
         n/a is no answer, and must not read as one."""
         if any(v is not None and math.isfinite(v) for v in self.metrics.values()):
             return ''
-        return (f"no metric could be computed from {len(self.t)} samples "
+        return (f"no metric could be computed from {self.summary.samples} samples "
                 f"({self.duration:g} s simulated)")
 
     # ------------------------------------------------------------------ outputs
@@ -165,7 +196,7 @@ class ScenarioRun:
             'simulated': self.duration, 'control_period': sc.control_period, 'seed': sc.seed,
             'completed': self.ok, 'error': self.error,
             'wall_time': self.wall_time, 'real_time_factor': self.real_time_factor,
-            'commands_clamped': self.clamped, 'clutch_switches': len(self.switches),
+            'commands_clamped': self.clamped, 'clutch_switches': self.switch_count,
             'solver_self_check': self.self_check,
             'units': dict(METRICS),
             'metrics': dict(self.metrics),
@@ -217,5 +248,5 @@ class ScenarioRun:
         return (f"{self.scenario.name}: {self.backend_text}{where}, {self.duration:g} s "
                 f"simulated in "
                 f"{self.wall_time:.3f} s ({self.real_time_factor:.3g}x real time), "
-                f"{len(self.switches)} clutch switches{suspect}, {self.clamped} commands "
+                f"{self.switch_count} clutch switches{suspect}, {self.clamped} commands "
                 f"clamped; {status}")

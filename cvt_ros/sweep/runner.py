@@ -83,13 +83,32 @@ def _record_scene(task, sim, result):
 
 
 def _run_scenario(task, deadline):
+    from ..recording.errors import RecordingError
     from ..scenario.harness import make_plant, run_scenario
-    plant = make_plant('offline', task.scenario)
-    run = run_scenario(task.scenario, task.controller, 'offline', progress=deadline,
-                       plant=plant)
-    warnings = []
+    mcap = task.record if task.record and not task.record.endswith('.csv') else None
     if task.record:
-        warnings += _record_scenario(task, run)
+        from pathlib import Path
+        Path(task.record).parent.mkdir(parents=True, exist_ok=True)
+
+    def run_case_scenario(mcap):
+        plant = make_plant('offline', task.scenario)
+        # (the recording is written as the run goes; a CSV needs every sample kept)
+        return plant, run_scenario(task.scenario, task.controller, 'offline',
+                                   progress=deadline, plant=plant, mcap=mcap, overwrite=True,
+                                   metrics_since=task.window,
+                                   keep_samples=True if task.record and not mcap else None)
+    warnings = []
+    try:
+        plant, run = run_case_scenario(mcap)
+    except RecordingError as exc:   # (the file cannot be made: the case runs unrecorded)
+        warnings.append(f"recording {task.record}: {exc}")
+        mcap = None
+        plant, run = run_case_scenario(None)
+    if mcap and run.recording_error is not None:
+        warnings.append(f"recording {task.record}: {run.recording_error}")
+    elif task.record and mcap is None and task.record.endswith('.csv'):
+        from ..solver.offline import write_csv
+        write_csv(task.record, run.samples)
     if run.error:
         kind = 'diverged' if run.error.startswith('the simulation failed') else 'controller'
         raise CaseFailure(kind, run.error)
@@ -102,18 +121,6 @@ def _run_scenario(task, deadline):
     elif all(v != v for k, v in figures.items() if k != 'energy_residual'):
         warnings.append(f"no step metric could be computed from {since:g} s on")
     return figures, warnings
-
-
-def _record_scenario(task, run):
-    from pathlib import Path
-    Path(task.record).parent.mkdir(parents=True, exist_ok=True)
-    if task.record.endswith('.csv'):
-        from ..solver.offline import write_csv
-        write_csv(task.record, run.samples)
-        return []
-    from ..scenario.recording import write_mcap
-    _, error = write_mcap(run, task.record, overwrite=True)
-    return [f"recording {task.record}: {error}"] if error else []
 
 
 def run_case(task):
