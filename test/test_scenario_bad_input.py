@@ -123,10 +123,14 @@ def test_the_plot_is_where_it_says(tmp_path, capsys):
 
 
 # ------------------------------------------------------------------------------ memory, time
-def test_the_longest_scenario_is_refused_before_it_allocates(tmp_path, capsys):
-    path = scenario_file(tmp_path, base="scene: conveyor\nduration: 86400\nsetpoint: 55.0\n")
+def test_a_scenario_beyond_the_longest_is_refused_before_it_runs(tmp_path, capsys):
+    """A day at 1 ms streams (test_scenario_stream.py); a day at 0.1 ms is refused."""
+    path = scenario_file(tmp_path, base="scene: conveyor\nduration: 86400\ncontrol_period: 1e-4\n"
+                                        "setpoint: 55.0\n")
     code, _, err = run(capsys, 'scenario', 'run', path, '--quiet')
-    assert code == 2 and '8.64e+07 control periods, more than 5e+06' in err
+    assert code == 2 and '8.64e+08 control periods, more than 1e+08' in err
+    day = scenario_file(tmp_path, base="scene: conveyor\nduration: 86400\nsetpoint: 55.0\n")
+    assert load_scenario(day).periods == 86_400_000
 
 
 def test_the_schedules_are_streamed_in_chunks_with_the_same_answer(tmp_path, monkeypatch):

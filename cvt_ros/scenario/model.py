@@ -34,8 +34,10 @@ KEYS = ('description', 'scene', 'overrides', 'duration', 'control_period', 'seed
 #: keys whose values are text, not numbers (a scene named 1e5 stays a name)
 TEXT_KEYS = ('description', 'scene', 'file', 'column', 'time_column')
 MAX_DURATION = 86400.0          # s
-MAX_PERIODS = 5_000_000         # control periods in one run: the run keeps each period's
-#                                 sample (metrics, plot, recording), ~0.4 kB each: ≤ 2 GB
+MAX_PERIODS = 100_000_000       # control periods in one run: a day at 1 ms. A run streams
+#   (scenario/stream.py): its buffers are one block, its kept trace at most KEEP_PERIODS samples
+#   (~0.2 GB); what still grows is the step window under way, 24 B a crank turn (≤ 1 turn a
+#   period: ≤ 2.4 GB here, a day of the conveyor's crank 50 MB) — and the time: ≥ 20 min of CPU
 MIN_PERIODS = 2                 # control periods in one run at least (three samples)
 SPEED_LIMIT = 1e4               # rad/s: the parameter table's bound on speeds
 
@@ -148,9 +150,8 @@ def load_scenario(path, overrides=None):
     period = _number(doc, 'control_period', 1e-5, 0.1, 1e-3, where)
     if duration / period > MAX_PERIODS:
         raise ScenarioError(f"{where}: duration: {duration:g} s is {duration / period:.3g} "
-                            f"control periods, more than {MAX_PERIODS:g} (a run keeps every "
-                            f"period's sample in memory, ~0.4 kB each): a longer "
-                            f"control_period or a shorter duration")
+                            f"control periods, more than {MAX_PERIODS:g} (a day at 1 ms): a "
+                            f"longer control_period or a shorter duration")
     if duration < MIN_PERIODS * period * (1.0 - 1e-9):   # (the step metrics need samples)
         raise ScenarioError(f"{where}: duration: {duration:g} s is shorter than "
                             f"{MIN_PERIODS} control periods ({period:g} s each)")
