@@ -95,7 +95,7 @@ def margin(result):
 
 
 @pytest.mark.parametrize('variant', sorted(VARIANTS))
-@pytest.mark.parametrize('scene', available_scenes())
+@pytest.mark.parametrize('scene', available_scenes(n_paths=1))
 def test_every_scene_switches_the_same_at_every_tolerance(scene, variant):
     values = dict(load_scene(scene), **VARIANTS[variant])
     counts = {rtol: switch_count(values, rtol)[0] for rtol in RTOLS}
@@ -304,7 +304,7 @@ def torque_scale(values):
 
 
 @pytest.mark.parametrize('rtol', [1e-4, SPECS['solver.rtol'].default])
-@pytest.mark.parametrize('scene', available_scenes())
+@pytest.mark.parametrize('scene', available_scenes(n_paths=1))
 def test_no_release_is_placed_further_past_its_guard_than_the_tolerance(scene, rtol):
     """The clutch carries no negative torque beyond rtol × the scene's torque scale where a
     release is placed (the rigid shaft's landings were 13–34 times that before the settling)."""

@@ -119,7 +119,7 @@ def test_a_running_machine_does_not_grow_a_path():
 
 # ------------------------------------------------------------------ N = 1
 @pytest.mark.parametrize('method', ['dopri5', 'rk4'])
-@pytest.mark.parametrize('scene', available_scenes())
+@pytest.mark.parametrize('scene', available_scenes(n_paths=1))
 def test_one_path_is_todays_machine_to_the_bit(scene, method):
     """paths.count 1 runs the one-path core: the same object, samples and switches as the
     scene without the new parameters (checked against c1dbe6f's own code once, by sha256 of
@@ -138,7 +138,7 @@ def test_one_path_is_todays_machine_to_the_bit(scene, method):
     assert today.switches_per_path == (today.switch_count,)
 
 
-@pytest.mark.parametrize('scene', available_scenes())
+@pytest.mark.parametrize('scene', available_scenes(n_paths=1))
 def test_the_n_path_core_at_one_path_agrees_with_the_one_path_core(scene):
     """The independent check: the N-path core (no exact open output, its own watch and reset
     map) on the one-path machine: the same switches, their times within 1e-6 s, φ4 within
@@ -156,7 +156,7 @@ def test_the_n_path_core_at_one_path_agrees_with_the_one_path_core(scene):
 
 # ------------------------------------------------------------------ N ≥ 2
 @pytest.mark.parametrize('n', [2, 3, 4, 5, 6])
-@pytest.mark.parametrize('scene', available_scenes())
+@pytest.mark.parametrize('scene', available_scenes(n_paths=1))
 def test_every_scene_switches_the_same_at_every_tolerance(scene, n):
     values = load_scene(scene, {'paths.count': n})
     counts = [run(values, rtol=rtol)[1].switch_count for rtol in RTOLS]

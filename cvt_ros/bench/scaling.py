@@ -70,7 +70,7 @@ def event_sweep(cfg, log):
     """Switch counts per scene and solver variant at every rtol; 'same' when all agree."""
     rows = []
     t0 = time.perf_counter()
-    for name in available_scenes():
+    for name in available_scenes(n_paths=1):
         for variant, changes in VARIANTS.items():
             counts, late = [], 0
             for rtol in SWEEP_RTOLS:

@@ -141,7 +141,6 @@ def _loop(scenario, controller, plant, controller_name, progress):
     setpoints, loads, chunk_end = _schedule_chunk(scenario, 0)
     chunk0 = 0
     limits = scenario.crank_limits
-    rows = np.empty((n + 1, N_COLUMNS))
     commands = np.full(n + 1, np.nan)
     switches = []
     sensors = SensorModel(scenario.sensors, dt, scenario.seed)
@@ -149,6 +148,8 @@ def _loop(scenario, controller, plant, controller_name, progress):
     # as the tuple it is (Measurement's own __new__ is one more Python call per period)
     observe = sensors.observe if scenario.sensors.enabled else None
     row = plant.start()            # (a node process starts here: not in the wall time)
+    # (N ≥ 2 paths: the rows carry each path's columns after N_COLUMNS, output.path_columns)
+    rows = np.empty((n + 1, max(len(row), N_COLUMNS)))
     rows[0] = row
     wall0 = time.perf_counter()
     actuator = ActuatorModel(scenario.actuator, float(row[_A]))

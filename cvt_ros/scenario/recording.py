@@ -8,11 +8,16 @@ import numpy as np
 from ..interface import QOS, float64_cdr, stamp_ns
 from ..recording.errors import RecordingError
 from ..recording.recorder import SimulationRecorder, check_target
+from ..solver.clutch_sets import path_masks, set_changes
 from ..solver.output import COL
 
 SETPOINT_TOPIC = '/setpoint'
 SETPOINT_TYPE = 'std_msgs/msg/Float64'
 SETPOINT_QOS = dict(QOS['crank_length_cmd'])
+
+
+def _time(switch):
+    return switch[0] if isinstance(switch, tuple) else switch.t
 
 
 def write_mcap(run, path, overwrite=False):
@@ -36,16 +41,23 @@ def write_mcap(run, path, overwrite=False):
     load_change = set(load_change.tolist())
     switches = run.switches
     count, j = 0, 0
+    n = recorder.n_paths
     with recorder:
+        if n > 1:   # one switching instant at a time (recorder.record_switch), from the first set
+            engaged = run.columns.index('engaged_1')
+            mask = path_masks(samples[0, engaged:engaged + n])
+            count += recorder.record_clutch_set(mask, t[0])
+            switches = set_changes(switches, mask)[0]
         count += recorder.record_clutch_state(bool(samples[0, COL['engaged']]), t[0])
         for k, row in enumerate(samples):
             ns = stamp_ns(row[0])
-            while j < len(switches) and stamp_ns(switches[j][0]) <= ns:
-                count += recorder.record_clutch_state(switches[j][1], switches[j][0])
+            while j < len(switches) and stamp_ns(_time(switches[j])) <= ns:
+                count += (recorder.record_switch(switches[j]) if n > 1
+                          else recorder.record_clutch_state(switches[j][1], switches[j][0]))
                 j += 1
             if not recorder.record_sample(row):
                 break
-            count += 1 + recorder.record_clock(row[0])
+            count += 1 + (n > 1) + recorder.record_clock(row[0])
             if k in setpoint_change:
                 count += recorder.write(SETPOINT_TOPIC, float64_cdr(run.setpoint[k]), ns)
             if k in load_change:

@@ -7,8 +7,8 @@ from functools import cached_property
 import numpy as np
 
 from ..analysis.stepinfo import METRICS, StepEvent, step_metrics, summarize_steps
-from ..analysis.trace import Trace
-from ..solver.output import COL
+from ..analysis.trace import trace_of_samples
+from ..solver.output import COL, N_COLUMNS, path_columns
 
 
 @dataclass(eq=False)
@@ -16,8 +16,10 @@ class ScenarioRun:
     """``samples``: (n+1, COLUMNS) plant samples at t_k = k·period (the true state, not the
     sensed one); ``setpoint``, ``load``: the schedules at t_k; ``commands``: the crank-length
     command of period k after the limiter (NaN: the controller kept the last one); ``switches``:
-    (t, engaged) clutch switches; ``error``: why the run stopped early (None: it ran to the end);
-    ``exception``: what the controller raised, with its traceback (None otherwise)."""
+    (t, engaged) clutch switches (N ≥ 2 paths: (t, engaged, path), each clutch's; the samples
+    then carry each path's columns, ``output.path_columns``); ``error``: why the run stopped
+    early (None: it ran to the end); ``exception``: what the controller raised, with its
+    traceback (None otherwise)."""
     scenario: object
     backend: str
     controller: str
@@ -68,20 +70,17 @@ class ScenarioRun:
             held[:first[0] if len(first) else len(c)] = np.nan
         return held
 
+    @property
+    def columns(self):
+        """The samples' columns (output.path_columns of the machine's paths)."""
+        return path_columns((self.samples.shape[1] - N_COLUMNS) // 4)
+
     def trace(self):
         """The run as an analysis Trace (true state, exact switch times)."""
-        s = self.samples
-        sw_t = np.array([t for t, _ in self.switches], dtype=float)
-        sw_on = np.array([e for _, e in self.switches], dtype=bool)
-        pick = [COL[c] for c in ('motor_torque', 'clutch_torque', 'shaft_torque', 'load_torque')]
-        return Trace(source=str(self.scenario.path), kind='scenario', t=s[:, COL['t']].copy(),
-                     phi=s[:, [COL['phi1'], COL['phi2'], COL['phi3'], COL['phi4']]],
-                     omega=s[:, [COL['omega1'], COL['omega2'], COL['omega3'], COL['omega4']]],
-                     effort=s[:, pick], twist=s[:, COL['twist']].copy(),
-                     crank_length=s[:, COL['crank_length']].copy(), switch_t=sw_t,
-                     switch_engaged=sw_on, initial_engaged=bool(s[0, COL['engaged']] > 0.5),
-                     switches_exact=True, parameters=dict(self.scenario.values),
-                     scene=str(self.scenario.scene))
+        return trace_of_samples(self.samples, self.columns, self.switches,
+                                source=str(self.scenario.path), kind='scenario',
+                                parameters=dict(self.scenario.values),
+                                scene=str(self.scenario.scene))
 
     def events(self):
         """The steps the loop had to answer: the start, each set-point and load change."""

@@ -20,6 +20,7 @@ from .output import COL, N_COLUMNS, write_sample
 from .steppers import DOPRI5, DP_A, DP_B, DP_C, DP_E, ERR_FULL, dense_state, rk4_combine, rk4_stage
 
 _ENGAGED = COL['engaged']
+_PHI2 = COL['phi2']
 
 
 @kernel
@@ -94,6 +95,7 @@ def write_paths_sample(row, t, y, mode, aux, P):
     row[_ENGAGED] = 1.0 if mode != 0 else 0.0
     n = n_paths(P)
     path_rocker_angles(y, aux[AUX_CRANK_LENGTH], P, row[N_COLUMNS:N_COLUMNS + n])
+    row[_PHI2] = row[N_COLUMNS]   # path 1's rocker: one value (joint_states' rocker_1), not two
     for k in range(n):
         row[N_COLUMNS + n + k] = aux[A_SPEED + k]
         row[N_COLUMNS + 2 * n + k] = 1.0 if mode & bit(k) else 0.0
