@@ -176,8 +176,10 @@ def _path_lines(analysis: RunAnalysis) -> list[str]:
         return []
     steady = paths.get('steady_state') or []
     head = ('engaged', 'Tc,max [N·m]', 'Tc,mean', 'K', 'switches')
-    lines = ["  per path (each clutch; the table's clutch torque is their sum, its engaged "
-             "fraction any clutch's): whole run | steady state",
+    width = 13 * len(head) - 1
+    lines = ["  per path: each clutch (the clutch torque above is their sum, the engaged fraction "
+             "any one's)",
+             f"  {'':6s} {'whole run':^{width}s} |{'steady state':^{width}s}".rstrip(),
              '  ' + f"{'path':>6s} " + ' '.join(f'{h:>12s}' for h in head) + ' |'
              + ' '.join(f'{h:>12s}' for h in head)]
     formats = ('{:.3%}', '{:.3f}', '{:.3f}', '{:.4f}', '{:.0f}')
