@@ -21,6 +21,9 @@ from ..physics.linkage import GrashofError, check_crank_length
 from .errors import AnalysisError
 from .trace import Command, PathTrace, RecordingInfo, Trace
 
+#: the set point of a controller-kit recording (``cvt-sim scenario run --mcap``; std_msgs/Float64)
+SETPOINT_TOPIC = '/setpoint'
+
 __all__ = ['load_mcap']
 
 
@@ -273,10 +276,18 @@ def load_mcap(path: str, *, namespace: str | None = None
     js_data: list[bytes] = []
     js_log: list[int] = []
     events: list[tuple[str, int, int, bytes]] = []
+    setpoint: list[tuple[float, float]] = []   # a controller-kit run's set point (sim time)
+    if info.topics.get(SETPOINT_TOPIC, ('',))[0] == 'std_msgs/msg/Float64':
+        keys[SETPOINT_TOPIC] = 'setpoint'
     try:
         for m in read_messages(path, topics=list(keys)):
             key = keys[m.topic]
-            if key == 'joint_states':
+            if key == 'setpoint':
+                value = _event_value(key, m.data)
+                if value is not None:
+                    setpoint.append(((m.publish_time_ns if ours else m.log_time_ns) * 1e-9,
+                                     value))
+            elif key == 'joint_states':
                 js_data.append(m.data)
                 js_log.append(m.log_time_ns)
             elif key in ('clutch_engaged', 'crank_length_cmd', 'load_torque_cmd',
@@ -312,6 +323,10 @@ def load_mcap(path: str, *, namespace: str | None = None
     traces = _split_runs(path, samples, events, parameters, ours, info, changes)
     for trace in traces:
         trace.notes[:0] = notes
+        # the set point in force over the run: the last value before it and the changes in it
+        inside = [p for p in setpoint if trace.t[0] < p[0] <= trace.t[-1]]
+        before = [p for p in setpoint if p[0] <= trace.t[0]]
+        trace.setpoint = before[-1:] + inside
     return traces, info
 
 
@@ -547,7 +562,7 @@ def _split_runs(path: str, samples: _Samples, events: list, parameters: dict | N
                       in_force, 'recording' if parameters else '',
                       [(ns * 1e-9, ch) for ns, ch in inside],
                       info.scene, len(traces), notes,
-                      'recorded' if np.any(np.isfinite(crank)) else '', paths)
+                      'recorded' if np.any(np.isfinite(crank)) else '', paths=paths)
         traces.append(trace)
     if not traces:
         raise AnalysisError(f'{path}: fewer than 2 samples in every run')
