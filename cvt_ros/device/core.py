@@ -319,7 +319,8 @@ class Device:
         """Apply parameter changes now (checked again against the present state); physics ones
         go to the simulator, which books the stored energy's jump."""
         new = self.check_parameters(changes)
-        physics = {k: new[k] for k in changes if k in PHYSICS_NAMES}
+        # (the paths: checked to be the same build, however spelt; nothing for the simulator)
+        physics = {k: new[k] for k in changes if k in PHYSICS_NAMES and k not in PATH_NAMES}
         if DISTURBANCE in changes:
             # the new schedule from now on: its rows already due apply at the next period (the
             # last of them wins: the value the schedule has in force now)
