@@ -490,7 +490,7 @@ class SampleLayout:
         """clutch_states CDR of ``row`` (N ≥ 2) stamped ``ns``."""
         r = row.tolist() if hasattr(row, 'tolist') else row
         w3 = r[self._omega3]
-        values = [*self._engaged(r), *(w - w3 for w in self._speeds(r)), *self._torques(r)]
+        values = [*self._engaged(r), *[w - w3 for w in self._speeds(r)], *self._torques(r)]
         return self.clutch_encoder.encode(*divmod(ns, 1_000_000_000), values)
 
     def clutch_switch(self, mask: int, ns: int) -> bytes:

@@ -504,8 +504,9 @@ class CvtSimNode(Node):
         """state, joint_states and /clock of one period's end (``row``: its sample, the
         actuator's rate [m/s]), serialized once (CDR bytes), published through the publishers'
         handles (rclpy's publish() adds a type check per message and nothing else)."""
-        ns = round(float(row[0]) * 1e9)   # = interface.stamp_ns(row[0])
-        data = self._layout.joint_states(row, crank_rate, ns)
+        values = row.tolist()             # (once, for joint_states and clutch_states)
+        ns = round(values[0] * 1e9)       # = interface.stamp_ns(row[0])
+        data = self._layout.joint_states(values, crank_rate, ns)
         joint_states, state, clock_handle = self._sample_handles
         clock = None
         try:
@@ -525,7 +526,7 @@ class CvtSimNode(Node):
             if not self._shutting_down(exc):
                 raise
         if self.n_paths > 1:   # (after the sample: a lockstep controller waits for that)
-            clutches = self._layout.clutch_states(row, ns)
+            clutches = self._layout.clutch_states(values, ns)
             self._publish_raw(self.clutch_states_publisher, clutches)
             self._hand_to_recorder(self._topic['clutch_states'], clutches, ns)
         if self._recorder is not None:
