@@ -162,7 +162,11 @@ def _no_partial_files(folder, expected):
 @FUZZ
 @given(data=st.data())
 def test_damaged_recordings_are_handled(worker, original, tmp_path_factory, data):
-    base, messages = original
+    _damaged_case(worker, *original, tmp_path_factory, data)
+
+
+def _damaged_case(worker, base, messages, tmp_path_factory, data):
+    """analyze (JSON, cycles CSV), export and recover on one mutation of ``base``."""
     bad = data.draw(mutated(base))
     folder = tmp_path_factory.mktemp('case')
     path = folder / 'bad.mcap'
@@ -243,23 +247,7 @@ def four_paths(tmp_path_factory):
 @given(data=st.data())
 def test_damaged_n_path_recordings_are_handled(worker, four_paths, tmp_path_factory, data):
     """The per-path input of analysis and export (rockers, clutch_states) damaged as above."""
-    base, messages = four_paths
-    bad = data.draw(mutated(base))
-    folder = tmp_path_factory.mktemp('case')
-    path = folder / 'bad.mcap'
-    path.write_bytes(bad)
-    out = {name: folder / name for name in ('a.json', 'x.csv', 'e.csv', 'r.mcap')}
-    outcome = check(worker, ['analyze', path, '--json', out['a.json'], '--cycles', '0'],
-                    [out['a.json']])
-    if outcome.code == 0:
-        json.loads(out['a.json'].read_text())
-    check(worker, ['export', path, '--csv', out['x.csv'], '--events', out['e.csv']],
-          [out['x.csv'], out['e.csv']])
-    outcome = check(worker, ['recover', path, '-o', out['r.mcap']])
-    if outcome.code in (0, 1):
-        assert not collections.Counter(_messages(out['r.mcap'])) - messages
-    assert path.read_bytes() == bad
-    _no_partial_files(folder, ['bad.mcap', *out])
+    _damaged_case(worker, *four_paths, tmp_path_factory, data)
 
 
 _PATH_HEADER = (b't,phi1,phi2,phi3,phi4,omega1,omega2,omega3,omega4,engaged,clutch_torque,'
