@@ -169,7 +169,7 @@ def _release_at_exit(resources):
     Released once, earlier, by the library's own ``finalizePythonInterpreter`` (from Python's
     exit, before the process's exit handlers), the pointer is null for both."""
     if not sys.platform.startswith('linux'):
-        return        # Windows: DllMain releases it before the static's destructor runs
+        return        # Windows: DllMain releases it before the DLL's static destructors (untested)
     for path in sorted((Path(resources).parent / 'binaries' / 'linux64').glob('*.so')):
         if str(path) in _exit_releases:
             continue
