@@ -572,6 +572,28 @@ def usable(runs, values):
             and all(s.t < 0.3 - 1e-3 for run in runs for s in run.switches))
 
 
+def placed_past_guard(run, values):
+    """How far past its guard a located switch was placed (≥ 0): a release's guard relative to
+    the run's largest (as relative_release_guard), a catch's slip relative to the speeds. A
+    switch placed where its guard had not reached zero (a spurious one) leaves no stray
+    sample, but its value here."""
+    torque = run.column('clutch_torque')
+    guard = (np.maximum(run.column('twist'), torque / values['shaft.stiffness'])
+             if values.get('clutch.release') == 'twist' else torque)
+    speeds = max(1.0, *(float(abs(run.column(w)).max()) for w in ('omega2', 'omega3')))
+    scales = {'release': max(1e-12, float(abs(guard).max())), 'engage': speeds}
+    return max((-s.value / scales[s.kind] for s in run.switches if s.kind in scales),
+               default=0.0)
+
+
+def crank_speed_error(run, reference):
+    """The largest error of the crank speed ω1 over the run, relative to the reference's (at
+    least 1 rad/s): continuous through every switch, it carries the rocker's, and so every
+    guard's, timing."""
+    w1 = reference.column('omega1')
+    return float((abs(run.column('omega1') - w1) / np.maximum(1.0, abs(w1))).max())
+
+
 def real_switches(run):
     return len([s for s in run.switches if s.kind != 'graze'])
 
@@ -591,7 +613,13 @@ def test_the_twist_rule_switches_the_same_at_every_tolerance(values, variant):
     runs = {rtol: switch_count(values, rtol, 0.3, FINE) for rtol in (1e-4, 1e-7, 1e-10)}
     for rtol, (_, run) in runs.items():
         assert path_stray(run, values) < STRAY, rtol
+        assert run.diagnostics['possible_missed_events'] == 0, rtol
+        assert placed_past_guard(run, values) < STRAY, rtol
     assume(usable([run for _, run in runs.values()], values))
+    # the near-miss margin stands for the loose run's error (NEAR_MISS): a machine on which
+    # rtol 1e-4 itself strays further (a light crank: 1.8 % of its speed off by 0.1 s) switches
+    # where that error decides, each switch right for the run's own state (BENCHMARKS.md)
+    assume(crank_speed_error(runs[1e-4][1], runs[1e-10][1]) < NEAR_MISS)
     assert len({count for count, _ in runs.values()}) == 1, {r: c for r, (c, _) in runs.items()}
 
 
