@@ -414,6 +414,7 @@ class Device:
             'n_paths': self.n_paths, 'engaged_set': self.engaged_set,
             'path_switches': tuple(sim.path_switch_counts),
             'relative_residual': float(energy['relative_residual']),
+            'self_check': sim.self_check(),
         }
 
 

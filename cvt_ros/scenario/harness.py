@@ -250,6 +250,9 @@ def _loop(scenario, controller, plant, controller_name, progress):
             commands = np.full(n + 1, np.nan)
             for t, value in external:
                 commands[min(int(round(t / dt)), n)] = value
+    # the solver's self-check where the plant runs in this process (a node over DDS reports it
+    # on its /diagnostics and in its own recording)
+    self_check = plant.self_check() if hasattr(plant, 'self_check') else None
     grid = keep * dt   # (k·period: the same numbers as the chunks the loop read)
     return ScenarioRun(scenario=scenario, backend=plant.name, controller=controller_name,
                        samples=samples, setpoint=scenario.setpoint.sample(grid),
@@ -259,4 +262,4 @@ def _loop(scenario, controller, plant, controller_name, progress):
                        realtime=getattr(plant, 'realtime', None),
                        domain=getattr(plant, 'domain', None),
                        node_timing=getattr(plant, 'node_timing', None),
-                       diagnostics=list(getattr(plant, 'diagnostics', ())))
+                       diagnostics=list(getattr(plant, 'diagnostics', ())), self_check=self_check)

@@ -38,5 +38,9 @@ class LockstepPlant:
             events = [s for change in events for s in change.switches]
         return period.row, plant_switches(events, self.device.n_paths)
 
+    def self_check(self):
+        """The solver's self-check (Simulator.self_check: possibly missed clutch events)."""
+        return self.device.sim.self_check()
+
     def close(self):
         pass

@@ -57,5 +57,9 @@ class OfflinePlant:
             return row, NO_SWITCHES
         return row, plant_switches(switches, self.sim.n_paths)
 
+    def self_check(self):
+        """The solver's self-check (Simulator.self_check: possibly missed clutch events)."""
+        return self.sim.self_check()
+
     def close(self):
         pass

@@ -70,4 +70,6 @@ def write_mcap(run, path, overwrite=False):
                 count += recorder.record_command('load_torque_cmd', float(run.load[k]), row[0])
             if k < len(commands) and np.isfinite(commands[k]):
                 count += recorder.record_command('crank_length_cmd', float(commands[k]), row[0])
+        if run.self_check is not None:
+            recorder.record_self_check(run.self_check)
     return count, (errors[0] if errors else None)

@@ -39,6 +39,15 @@ class ScenarioRun:
     domain: int = None          # dds back end: the node's ROS domain
     node_timing: dict = None    # dds, realtime: the node's timing
     diagnostics: list = field(default_factory=list)   # dds, realtime: the node's /diagnostics
+    # the solver's self-check (Simulator.self_check(); None: the plant ran in another process)
+    self_check: dict = None
+
+    @property
+    def possible_missed_events(self):
+        """Clutch events the solver may have missed in this run (its self-check), or None."""
+        if self.self_check is None:
+            return None
+        return self.self_check['possible_missed_events'] + self.self_check['stray_samples']
 
     @property
     def backend_text(self):
@@ -156,6 +165,7 @@ class ScenarioRun:
             'completed': self.ok, 'error': self.error,
             'wall_time': self.wall_time, 'real_time_factor': self.real_time_factor,
             'commands_clamped': self.clamped, 'clutch_switches': len(self.switches),
+            'solver_self_check': self.self_check,
             'units': dict(METRICS),
             'metrics': dict(self.metrics),
             'steps': [dict(s) for s in self.steps],
@@ -199,9 +209,12 @@ class ScenarioRun:
 
     def summary_line(self):
         status = 'completed' if self.ok else f"STOPPED: {self.error}"
+        missed = self.possible_missed_events
+        suspect = (f", {missed} possibly missed clutch events (the solver's self-check: "
+                   f"{self.self_check['solver']})" if missed else '')
         where = f" on ROS domain {self.domain}" if self.domain is not None else ''
         return (f"{self.scenario.name}: {self.backend_text}{where}, {self.duration:g} s "
                 f"simulated in "
                 f"{self.wall_time:.3f} s ({self.real_time_factor:.3g}x real time), "
-                f"{len(self.switches)} clutch switches, {self.clamped} commands clamped; "
-                f"{status}")
+                f"{len(self.switches)} clutch switches{suspect}, {self.clamped} commands "
+                f"clamped; {status}")
