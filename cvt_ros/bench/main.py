@@ -28,6 +28,7 @@ from .scaling import (
     QUICK_SPANS,
     SPANS,
     event_sweep,
+    section_events,
     section_scaling,
     stiffness_scaling,
     time_scaling,
@@ -93,10 +94,10 @@ def page(cfg, env, parts, plots, data, command, wall_total):
     results, default = parts['work'], parts['default']
     if parts['steady']:
         L += mark(section_steady(parts['steady'], parts['steady_load']), 'steady')
-    if parts['scaling'] or parts['events']:
-        times, stiffness = parts['scaling'] or ([], [])
-        keys = [k for k in ('scaling', 'events') if parts[k]]
-        L += mark(section_scaling(times, stiffness, parts['events'], cfg), *keys)
+    if parts['scaling']:
+        L += mark(section_scaling(*parts['scaling'], cfg), 'scaling')
+    if parts['events']:
+        L += mark(section_events(parts['events'], cfg), 'events')
     if default:
         L += mark(section_default(default, results, cfg, command), 'work')
     if results:

@@ -15,7 +15,8 @@ ROOT = Path(__file__).resolve().parents[2]
 OWN_TITLE = '# Benchmarks'
 
 
-OWN_SECTIONS = ('Speed at steady state', 'Scaling', 'Default settings', 'Work-precision',
+OWN_SECTIONS = ('Speed at steady state', 'Scaling', 'Clutch switches at every tolerance',
+                'Default settings', 'Work-precision',
                 'Speed-up at equal error', 'Numerical stability on hard cases',
                 'Stability limit of fixed-step RK4', 'Long run', 'Known defects')
 
