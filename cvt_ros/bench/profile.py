@@ -204,13 +204,7 @@ def section(results, command, load):
           "includes what LLVM inlined into it; `libm` rows are the elementary functions the "
           "kernels call (sincos: the crank angle and the open output's modal rotation; pow: "
           "the step-size controller).", '']
-    totals, per_second = [], []
-    for w, counts in results:
-        totals.append(sum(counts.values()) or 1)
-        per_second.append(1e6 * (w['stop'] - w['start']) / w['span'])
-        L += [f"**{w['scene']}**: {w['span']:g} s simulated in "
-              f"{1e3 * (w['stop'] - w['start']):.0f} ms ({per_second[-1]:.0f} µs per simulated "
-              f"second), {w['rhs']} right-hand sides, {w['steps']} steps, {totals[-1]} samples."]
+    totals = [sum(counts.values()) or 1 for _, counts in results]
     shares = {}
     for (_, counts), total in zip(results, totals, strict=True):
         for key, n in counts.items():
@@ -225,7 +219,13 @@ def section(results, command, load):
     rest = [1.0 - sum(counts.get(k, 0) for k in top) / total
             for (w, counts), total in zip(results, totals, strict=True)]
     rows.append(['(the rest)'] + [f'{100 * r:.1f} %' for r in rest])
-    L += [''] + table(['where (share of the window)'] + [w['scene'] for w, _ in results], rows)
+    windows = [w for w, _ in results]
+    rows.append(['µs per simulated second (wall)'] + [
+        f"{1e6 * (w['stop'] - w['start']) / w['span']:.0f}" for w in windows])
+    rows.append(['simulated [s]; right-hand sides; steps; perf samples'] + [
+        f"{w['span']:g}; {w['rhs']}; {w['steps']}; {n}" for w, n in zip(windows, totals,
+                                                                         strict=True)])
+    L += table(['where (share of the window)'] + [w['scene'] for w in windows], rows)
     return '\n'.join(L + [''])
 
 
