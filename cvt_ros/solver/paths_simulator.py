@@ -104,9 +104,9 @@ class PathsSimulator(Simulator):
 
     # ------------------------------------------------------------------ integration
     def _call(self, t_end, grid, out, objects=True):
-        self.t = advance_paths(self.t, t_end, self.y, self.ms, self.P, self.ACT, self.S,
-                               self.h_io, grid, out, self._events_buf, self.counters, self.ledger,
-                               self._scratch)
+        self.t = advance_paths(self.t, t_end, self.y, self.ms, self.P, self.ACT, self.LIN,
+                               self.S, self.h_io, grid, out, self._events_buf, self.counters,
+                               self.ledger, self._scratch)
         return self._finish_call(objects)
 
     @staticmethod
