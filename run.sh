@@ -11,7 +11,7 @@
 # demo, test and bench run in this checkout.
 set -euo pipefail
 CALLER=$PWD
-cd "$(dirname "$0")"
+cd "$(dirname "$(readlink -f "$0")")"   # the checkout (also when run.sh is called through a link)
 ROOT=$PWD
 VENV=$ROOT/.venv
 ROS2CLI_VENDOR=${CVT_ROS2CLI_VENDOR:-$ROOT/third_party/ros2cli}
@@ -33,6 +33,10 @@ setup() {
              [ -x "$ROS2CLI_VENDOR/install.sh" ] && echo ros2cli) | sha256sum | cut -c1-16)
     stamp=$VENV/.cvt_ros-installed
     if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then return; fi
+    if [ -L "$VENV" ]; then
+        echo "run.sh: $VENV links to another checkout's environment, set up for other" \
+             "requirements: set it up there (or remove the link)" >&2; exit 2
+    fi
     if ! "$py" -c 'import ensurepip, venv' >/dev/null 2>&1; then
         if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
             apt-get update -qq && apt-get install -y -qq python3-venv >/dev/null
@@ -59,6 +63,8 @@ ament_register() {
     # `ros2 pkg executables cvt_ros` would not find the package: register it in the venv's ament
     # index by links into this checkout (what colcon's install space holds as copies).
     local share=$VENV/share/cvt_ros lib=$VENV/lib/cvt_ros exe
+    # a venv linked from another checkout (worktrees sharing one) stays registered to that one
+    if [ -L "$VENV" ]; then return; fi
     mkdir -p "$VENV/share/ament_index/resource_index/packages" "$share" "$lib"
     : > "$VENV/share/ament_index/resource_index/packages/cvt_ros"
     ln -sfn "$ROOT/package.xml" "$share/package.xml"

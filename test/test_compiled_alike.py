@@ -2,7 +2,9 @@
 compiled fresh in one process and loaded from numba's disk cache in another (as the node and a
 test process, or two sweep workers, do) must agree, or "the device's lockstep run equals the
 offline core's to the bit" holds only when both happened to compile alike. With fastmath's
-reassociation allowed they differed by 8e-11 after 46 ms (physics/compiled.py)."""
+reassociation allowed they differed by 8e-11 after 46 ms (physics/compiled.py). The process that
+compiles also checks that every kernel was compiled once (no second version for a constant
+argument's value: compile time)."""
 import os
 import subprocess
 import sys
@@ -33,6 +35,12 @@ for k in range(400):
     sim.advance(1e-3)
     rows.append(sim.sample())
 np.save(sys.argv[1], np.array(rows))
+# one compiled version per kernel (physics/compiled.py: no specialization per constant argument)
+from numba.core.registry import CPUDispatcher
+twice = sorted(f'{m}.{k}: {len(v.signatures)} versions' for m, mod in list(sys.modules.items())
+               if m.startswith('cvt_ros.') for k, v in vars(mod).items()
+               if isinstance(v, CPUDispatcher) and len(v.signatures) > 1)
+assert not twice, twice
 """
 
 

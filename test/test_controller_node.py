@@ -73,3 +73,48 @@ def test_gains_change_live_and_bad_values_are_refused(node):
     bad = node.set_parameters([Parameter('crank_max', value=-1.0)])[0]
     assert not bad.successful and 'crank_max' in bad.reason
     assert node.law.gains.crank_max == 0.09
+
+
+def test_the_set_point_topic_takes_the_publishers_of_ros2_topic_pub_and_latched_ones(node):
+    """`ros2 topic pub --once /speed_setpoint ...` offers reliable + volatile: a transient-local
+    subscription refused it (the docs' example never reached the controller)."""
+    from rclpy.qos import DurabilityPolicy, QoSCompatibility, QoSProfile, qos_check_compatible
+    sub = node.speed_setpoint_subscription.qos_profile
+    for publisher in (QoSProfile(depth=10),        # ros2 topic pub's default, most nodes'
+                      QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)):
+        compatibility, reason = qos_check_compatible(publisher, sub)
+        assert compatibility != QoSCompatibility.ERROR, reason   # (WARNING: system defaults)
+
+
+RACE = """
+import sys
+from rclpy.node import Node
+from std_msgs.msg import Float64
+from cvt_ros.control.node import spin
+
+class Racer(Node):
+    def __init__(self):
+        super().__init__('racer')
+        self.publisher = self.create_publisher(Float64, 'x', 10)
+        self.timer = self.create_timer(0.01, self.race)
+
+    def race(self):
+        if sys.argv[1] == 'sigint':
+            self.context.try_shutdown()   # SIGINT's handler, between two lines of a callback
+        else:
+            raise RuntimeError('a callback failed')
+        self.publisher.publish(Float64())  # RCLError: publisher's context is invalid
+
+sys.exit(spin(Racer, []))
+"""
+
+
+@pytest.mark.parametrize('what, code', [('sigint', 0), ('error', 1)])
+def test_a_controller_node_stopped_while_it_publishes_exits_0(what, code):
+    """Ctrl-C that lands while a callback publishes is a stop like any other (it once ended
+    cvt_speed_controller with RCLError and exit code 1); a callback's own error is not."""
+    import subprocess
+    import sys
+    proc = subprocess.run([sys.executable, '-c', RACE, what], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == code, proc.stderr[-2000:]

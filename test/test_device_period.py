@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from cvt_ros.device.core import Device
-from cvt_ros.device.diagnostics import Reporter, Stats
+from cvt_ros.device.diagnostics import WARN, Reporter, Stats
 from cvt_ros.scene import load_scene
 from cvt_ros.solver.fidelity import make_simulator
 from cvt_ros.solver.period import PeriodStepper
@@ -138,3 +138,23 @@ def test_diagnostics_report_one_snapshot_of_the_simulation():
     assert values['samples_published'] == '100'
     assert values['missed_deadlines'] == '3'
     assert float(values['crank_length_m']) == pytest.approx(device.sim.crank_length)
+    # the solver's self-check: which method, no possibly missed clutch event, so no warning
+    assert values['solver'] == 'dopri5, rtol 2e-06' and values['possible_missed_events'] == '0'
+    assert level != WARN or 'missed deadlines' in message
+
+
+def test_diagnostics_warn_of_a_possibly_missed_clutch_event():
+    """A run whose solver found a guard beyond its band after a step (a possibly missed event)
+    says so on /diagnostics: WARN, with the count and the time of the first (issue 32)."""
+    device = Device(dict(load_scene('paper'), **{'solver.method': 'rk4'}), DT)
+    row = device.advance().row
+    snap = dict(device.snapshot(row), wall_ns=time.monotonic_ns(), samples=1, resets=0)
+    snap['self_check'] = dict(snap['self_check'], possible_missed_events=2,
+                              first_possible_missed_event_s=0.0005)
+    settings = {'mode': 'realtime', 'state': 'realtime', 'real_time_factor': 1.0,
+                'publish_rate': 1000.0, 'control_period': DT, 'fault': None, 'policy': 'p'}
+    level, message, values = Reporter().report(snap, Stats(), device.step_ns, settings)
+    values = dict(values)
+    assert level == WARN and '2 possibly missed clutch events' in message
+    assert values['possible_missed_events'] == '2'
+    assert values['solver'].startswith('rk4, fixed step')

@@ -35,7 +35,12 @@ from cvt_ros.recording import (
     type_description_hash,
 )
 from cvt_ros.recording._cdr import cdr_size
-from cvt_ros.recording.recorder import METADATA_NAME, SimulationRecorder, write_run
+from cvt_ros.recording.recorder import (
+    METADATA_NAME,
+    SELF_CHECK_NAME,
+    SimulationRecorder,
+    write_run,
+)
 from cvt_ros.solver.offline import run_scene
 from cvt_ros.solver.output import COL
 
@@ -162,7 +167,11 @@ def test_run_recording_read_by_mcap_reader(paper_run):
         metadata = {m.name: m.metadata for m in reader.iter_metadata()}
         messages = [(c.topic, m.log_time, m.publish_time, m.data)
                     for _, c, m in reader.iter_messages(log_time_order=False)]
-    assert set(metadata) == {METADATA_NAME, 'rosbag2'}
+    assert set(metadata) == {METADATA_NAME, SELF_CHECK_NAME, 'rosbag2'}
+    # the run's solver self-check (issue 32): no possibly missed clutch event in this run
+    check = metadata[SELF_CHECK_NAME]
+    assert check['possible_missed_events'] == '0' and check['stray_samples'] == '0'
+    assert check['solver'].startswith('dopri5')
     meta = metadata[METADATA_NAME]
     params = yaml.safe_load(meta['parameters'])
     assert params['inertia.output'] == 0.5 and params['linkage.crank_length'] == 0.03

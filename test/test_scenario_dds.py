@@ -40,6 +40,10 @@ def test_dds_lockstep_is_bit_identical_to_offline(name):
     assert np.array_equal(run.t, offline.t)       # the times too: both are the stamps' whole ns
     assert np.array_equal(run.commands, offline.commands, equal_nan=True)
     assert [e for _, e in run.switches] == [e for _, e in offline.switches]
+    # at their own times (the node's recording: a stamp's whole ns), not at the sample after
+    assert np.allclose([t for t, _ in run.switches], [t for t, _ in offline.switches],
+                       rtol=0, atol=1e-9)
+    assert f'on ROS domain {run.domain}' in run.summary_line()
     # so every metric is the same number
     assert list(run.metrics) == list(offline.metrics)
     for key, value in offline.metrics.items():
@@ -74,11 +78,19 @@ def test_fixture_device_holds_a_domain_of_its_own():
     lease.release()
 
 
-def test_realtime_rehearsal_records_every_period():
+def test_realtime_rehearsal_records_every_period(tmp_path):
     sc = load_scenario('conveyor_load_step', {'duration': 1.5})
     run = run_scenario(sc, backend='dds', realtime=1.0)
     assert run.ok, run.error
     assert 'dds, realtime 1x' in run.summary_line() and run.to_dict()['realtime'] == 1.0
+    # the node's timing against the wall clock: in the table, the JSON and the MCAP
+    timing = run.to_dict()['node_timing']
+    assert timing['missed_deadlines'] >= 0 and timing['jitter_max_us'] >= timing['jitter_p50_us']
+    assert 'missed deadlines' in run.format_table() and run.diagnostics
+    from cvt_ros.recording import summary
+    from cvt_ros.scenario.recording import write_mcap
+    count, error = write_mcap(run, tmp_path / 'rt.mcap')
+    assert error is None and summary(tmp_path / 'rt.mcap').topics['/diagnostics'].message_count
     assert len(run.t) == sc.periods + 1                       # from the node's own recording
     assert np.allclose(np.diff(run.t), sc.control_period)
     assert np.isfinite(run.commands).sum() > 10               # the law acted once per turn
@@ -123,3 +135,18 @@ def test_topic_based_ros2_control_convention():
         assert row[COL['crank_length']] > 0.04                       # the actuator moves
     finally:
         plant.close()
+
+
+def test_the_node_gets_the_domain_of_ros_domain_id_when_it_is_free(monkeypatch):
+    """`ROS_DOMAIN_ID=42 cvt-sim scenario run ... --backend dds` and `ros2 topic echo` in the
+    same shell see the same node; a domain another run holds is not shared."""
+    from cvt_ros.device import domains
+    from cvt_ros.scenario.dds import lease_domain
+    free = domains.acquire()
+    wanted = free.domain
+    free.release()
+    monkeypatch.setenv('ROS_DOMAIN_ID', str(wanted))
+    with lease_domain() as lease:
+        assert lease.domain == wanted
+        with lease_domain() as other:                 # held: another one, not shared
+            assert other.domain != wanted

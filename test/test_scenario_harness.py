@@ -106,6 +106,10 @@ def test_mcap_is_read_back_by_the_analysis(load_step_run, tmp_path):
     assert [(c.t, c.value) for c in loads] == [(4.0, 14.0), (10.0, 8.0)]
     assert len(tr.switch_t) == len(run.switches)
     assert tr.parameters['load.torque'] == 8.0
+    assert tr.setpoint == [(0.0, 55.0)]                        # /setpoint: drawn by analyze
+    from cvt_ros.analysis.analyze import analyze_trace
+    from cvt_ros.analysis.plots import fig_timeseries
+    fig_timeseries(analyze_trace(tr), str(tmp_path / 'ts.png'))
 
 
 class Boom:
@@ -162,11 +166,24 @@ def test_controller_by_module_and_factory(tmp_path, monkeypatch):
         '    return lambda m: 0.045\n'
         'def bare():\n'
         '    return lambda m: None\n'
+        'class Hold:\n'                      # a class: built with its defaults
+        '    def __init__(self, crank=0.05):\n'
+        '        self.crank = crank\n'
+        '    def __call__(self, m):\n'
+        '        return self.crank\n'
+        'class Told:\n'                      # unless it asks for the scenario
+        '    def __init__(self, scenario, crank=0.05):\n'
+        '        self.crank = scenario.crank_limits.max\n'
+        '    def __call__(self, m):\n'
+        '        return self.crank\n'
         'broken = 3\n')
     monkeypatch.syspath_prepend(str(tmp_path))
     sc = load_scenario('conveyor_load_step', {'duration': 0.5})
     assert run_scenario(sc, 'my_ctrl:make').commands[0] == pytest.approx(0.04 + 1e-5)
     assert np.all(np.isnan(run_scenario(sc, 'my_ctrl:bare').commands))
+    held = run_scenario(sc, 'my_ctrl:Hold')    # (once: Hold(scenario), crank = the Scenario)
+    assert held.ok and held.commands[0] == pytest.approx(0.04 + 1e-5)   # rate-limited to 0.05
+    assert run_scenario(sc, 'my_ctrl:Told').ok
     for spec, why in (('my_ctrl', 'MODULE:FACTORY'), ('no_such_mod:f', 'cannot import'),
                       ('my_ctrl:nope', 'has no nope'), ('my_ctrl:broken', 'raised')):
         with pytest.raises(HarnessError, match=why):

@@ -228,10 +228,11 @@ def test_neutral_crank_holds_any_backward_load(mode, values, load):
 # next step's end; the reset map now puts ω3 = v before it opens the clutch
 @example(c=1784.808022583862, j3=0.007275948881807203, factor=2.0)
 def test_real_time_mode_refines_a_step_beyond_the_stability_limit(c, j3, factor):
-    """RK4 asked for a step `factor` times its stability limit 2.83/λ (λ the open clutch's shaft
-    mode): refine_step auto sub-steps below it and the run is stable and close to dopri5."""
+    """RK4 asked for a step `factor` times its stability limit 2.83/λ (λ the engaged clutch's
+    shaft twist mode, the fastest it integrates: the open clutch's ringing runs apart, exactly):
+    refine_step auto sub-steps below it and the run is stable and close to dopri5."""
     base = dict(load_scene('paper'), **{'shaft.stiffness': c, 'inertia.clutch_driven': j3})
-    lam = math.sqrt(c * (1.0 / j3 + 1.0 / base['inertia.output']))
+    lam = math.sqrt(c * (1.0 / (base['inertia.rocker'] + j3) + 1.0 / base['inertia.output']))
     step = min(factor * 2.83 / lam, SPECS['solver.fixed_step'].high)
     sim = Simulator(dict(base, **{'solver.method': 'rk4', 'solver.fixed_step': step}))
     assert sim.h_fixed * lam <= 0.5 + 1e-12
@@ -242,15 +243,32 @@ def test_real_time_mode_refines_a_step_beyond_the_stability_limit(c, j3, factor)
     assert sim.sample()[COL['phi4']] == pytest.approx(ref.sample()[COL['phi4']], rel=1e-3)
 
 
+def test_a_refined_fixed_step_says_so_naming_the_setting():
+    """rk4 asked for a step its fastest integrated rate cannot take refines it (refine_step
+    auto) and says so in the run's diagnostics, naming solver.fixed_step and the rate."""
+    sim = Simulator(dict(load_scene('stiff_shaft'), **{'solver.method': 'rk4'}))
+    result = sim.run(0.01, 1e-3)
+    note = result.diagnostics['solver']
+    assert note.startswith(f"rk4, fixed step {sim.h_fixed:.3g} s")
+    assert 'solver.fixed_step 0.0002 s refined' in note and 'twist mode' in note
+    assert not result.diagnostics['warnings']
+
+
 def test_plain_rk4_beyond_the_stability_limit_blows_up():
     """The same request with refine_step off is not stable: the experiment behind the stability
-    limits in BENCHMARKS.md (c = 5e5, J3 = 1e-3: limit 2.83/λ = 1.26e-4 s)."""
+    limits in BENCHMARKS.md. c = 5e5, J3 = 1e-3: the simulator's bound on the engaged twist
+    mode, λ = 1.29e4 1/s, limits RK4 to 2.83/λ = 2.19e-4 s (the open clutch's ringing,
+    2.24e4 1/s, runs apart); a run beyond it says so, naming solver.fixed_step, and far beyond
+    it (the mode is slower than its bound) blows up."""
     base = dict(load_scene('paper'), **{'shaft.stiffness': 5e5, 'solver.method': 'rk4',
                                         'solver.refine_step': 'off'})
-    stable = Simulator(dict(base, **{'solver.fixed_step': 1.0e-4}))
+    stable = Simulator(dict(base, **{'solver.fixed_step': 1.8e-4}))
+    assert not stable.warnings
     stable.advance(0.3)
     assert stable.energy_balance()['relative_residual'] < 1e-3
-    sim = Simulator(dict(base, **{'solver.fixed_step': 1.5e-4}))
+    warned = Simulator(dict(base, **{'solver.fixed_step': 3.0e-4}))
+    assert any('solver.fixed_step' in w and 'stability bound' in w for w in warned.warnings)
+    sim = Simulator(dict(base, **{'solver.fixed_step': 2.0e-3}))
     try:
         sim.advance(0.3)
     except SimulationError:

@@ -53,7 +53,7 @@ def comparable(rows):
 MIXED = """\
     scene: conveyor
     duration: 2.0
-    overrides: {solver.method: rk4, solver.fixed_step: 0.005, shaft.stiffness: 2.0e4}
+    overrides: {solver.method: rk4, solver.fixed_step: 0.05, shaft.stiffness: 2.0e4}
     cases:
       - {solver.refine_step: auto, load.torque: 4.0}
       - {solver.refine_step: 'off', load.torque: 4.0}

@@ -59,7 +59,7 @@ def test_every_failure_is_a_row_with_its_reason(tmp_path):
     campaign = campaign_file(tmp_path, """\
         scene: conveyor
         duration: 1.0
-        overrides: {solver.method: rk4, solver.fixed_step: 0.005, shaft.stiffness: 1.0e5}
+        overrides: {solver.method: rk4, solver.fixed_step: 0.02, shaft.stiffness: 1.0e5}
         cases:
           - {solver.refine_step: auto}
           - {solver.refine_step: 'off'}

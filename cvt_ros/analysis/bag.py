@@ -21,6 +21,9 @@ from ..physics.linkage import GrashofError, check_crank_length
 from .errors import AnalysisError
 from .trace import Command, RecordingInfo, Trace
 
+#: the set point of a controller-kit recording (``cvt-sim scenario run --mcap``; std_msgs/Float64)
+SETPOINT_TOPIC = '/setpoint'
+
 __all__ = ['load_mcap']
 
 
@@ -252,10 +255,18 @@ def load_mcap(path: str, *, namespace: str | None = None
     js_data: list[bytes] = []
     js_log: list[int] = []
     events: list[tuple[str, int, int, bytes]] = []
+    setpoint: list[tuple[float, float]] = []   # a controller-kit run's set point (sim time)
+    if info.topics.get(SETPOINT_TOPIC, ('',))[0] == 'std_msgs/msg/Float64':
+        keys[SETPOINT_TOPIC] = 'setpoint'
     try:
         for m in read_messages(path, topics=list(keys)):
             key = keys[m.topic]
-            if key == 'joint_states':
+            if key == 'setpoint':
+                value = _event_value(key, m.data)
+                if value is not None:
+                    setpoint.append(((m.publish_time_ns if ours else m.log_time_ns) * 1e-9,
+                                     value))
+            elif key == 'joint_states':
                 js_data.append(m.data)
                 js_log.append(m.log_time_ns)
             elif key in ('clutch_engaged', 'crank_length_cmd', 'load_torque_cmd',
@@ -290,6 +301,10 @@ def load_mcap(path: str, *, namespace: str | None = None
     traces = _split_runs(path, samples, events, parameters, ours, info, changes)
     for trace in traces:
         trace.notes[:0] = notes
+        # the set point in force over the run: the last value before it and the changes in it
+        inside = [p for p in setpoint if trace.t[0] < p[0] <= trace.t[-1]]
+        before = [p for p in setpoint if p[0] <= trace.t[0]]
+        trace.setpoint = before[-1:] + inside
     return traces, info
 
 

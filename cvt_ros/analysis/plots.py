@@ -256,6 +256,10 @@ def fig_timeseries(analysis: RunAnalysis, path: IO[bytes] | str) -> None:
         ax.step(np.append(cy['t_start'], cy.t_end[-1]),
                 np.append(cy['output_speed'], cy['output_speed'][-1]), where='post',
                 color='k', lw=1.0, label='ω4 mean per cycle')
+    if tr.setpoint:   # a controller-kit recording: what the controller was asked for
+        ts = [max(p[0], float(t[0])) for p in tr.setpoint] + [float(t[-1])]
+        ax.step(ts, [p[1] for p in tr.setpoint] + [tr.setpoint[-1][1]], where='post',
+                color='C3', ls='--', lw=1.3, label='set point (/setpoint)')
     steady = analysis.steady
     if steady.found:
         for a in axes:

@@ -59,6 +59,9 @@ class Trace:
     #: where ``crank_length`` comes from: 'recorded' (a topic of the recording), 'csv',
     #: 'reconstructed' (solved from φ1, φ2 and the geometry) or '' (unknown: all NaN)
     crank_length_source: str = ''
+    #: the set point a controller followed, (t [s], value [rad/s]) at t0 and each change: a
+    #: controller-kit recording's /setpoint (``cvt-sim scenario run --mcap``), else empty
+    setpoint: list[tuple[float, float]] = field(default_factory=list)
 
     @property
     def n(self) -> int:

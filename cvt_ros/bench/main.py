@@ -8,7 +8,8 @@ node's benchmark (cvt_ros.bench.node); ``cvt-sim bench fidelity ARGS`` the fidel
 ``cvt-sim bench sweep ARGS`` the Dask campaign benchmark (cvt_ros.bench.sweep); ``cvt-sim bench
 design ARGS`` the design tools (cvt_ros.bench.design); ``cvt-sim bench
 profile ARGS`` where the core's time goes at steady state (Linux perf, cvt_ros.bench.profile);
-``cvt-sim bench paths`` what N paths cost (cvt_ros.bench.paths).
+``cvt-sim bench paths`` what N paths cost (cvt_ros.bench.paths);
+``cvt-sim bench compile ARGS`` what compiling the kernels costs a first run (cvt_ros.bench.compile).
 """
 import argparse
 import importlib
@@ -56,7 +57,7 @@ from .work_precision import (
 
 SECTIONS = ('work', 'steady', 'scaling', 'events', 'hard', 'stability', 'long', 'defects')
 # modules with their own main(argv)
-SUBCOMMANDS = ('node', 'fidelity', 'sweep', 'profile', 'design', 'paths')
+SUBCOMMANDS = ('node', 'fidelity', 'sweep', 'profile', 'design', 'paths', 'compile')
 
 
 def page(cfg, env, parts, plots, command, wall_total):
@@ -173,7 +174,8 @@ def parse_args(argv):
                'other benchmarks: cvt-sim bench node --help (the ROS node), '
                'cvt-sim bench fidelity --help (each fidelity against the full model), '
                'cvt-sim bench sweep --help (Dask campaigns), '
-               'cvt-sim bench profile --help (a perf profile of the steady-state runs)')
+               'cvt-sim bench profile --help (a perf profile of the steady-state runs), '
+               'cvt-sim bench compile --help (the first run\'s kernel compilation)')
     ap.add_argument('--quick', action='store_true', help='CI-sized: short spans, fewer points')
     where = ap.add_mutually_exclusive_group()
     where.add_argument('--out', metavar='FILE',

@@ -36,7 +36,7 @@ from dataclasses import dataclass, field
 from ..scene import load_scene
 from ..solver import cvode
 from ..solver.reference import solve_reference
-from ..solver.simulator import SimulationError, fastest_rate
+from ..solver.simulator import SimulationError, fixed_step
 from .measure import (
     BLOWUP_RESIDUAL,
     Outcome,
@@ -223,7 +223,7 @@ def compute_reference(name, values, duration, log):
 def step_sweep(values, n):
     """The rk4 steps for a scene: the largest the real-time mode takes (its refined step), then
     the round steps below it, n in all."""
-    h_stable = 0.5 / fastest_rate(values)
+    h_stable = fixed_step(values)[0]
     steps = [min(STEPS[0], h_stable)]
     steps += [h for h in STEPS if h < steps[0] * (1.0 - 1e-9)]
     return steps[:n]

@@ -122,7 +122,12 @@ def format_summary(summary, scene, fidelity='full'):
             f"(path 1 … {len(s['switches_per_path'])})"]),
         f"energy balance   residual {s['energy_residual_J']:.3e} J = "
         f"{s['energy_residual_relative']:.2e} of the work done",
-        f"solver           {s['steps']} steps, {s['rejected_steps']} rejected",
+        f"solver           {s['steps']} steps, {s['rejected_steps']} rejected"
+        + (f" ({s['solver']})" if s.get('solver') else ''),
+        f"self-check       {s.get('possible_missed_events', 0)} switches found late, "
+        f"{s.get('stray_samples', 0)} samples outside their clutch mode"
+        + (" (possibly missed events: see the warnings)"
+           if s.get('possible_missed_events') or s.get('stray_samples') else ''),
         f"wall time        {s['wall_time_s']:.4f} s, real-time factor "
         f"{s['real_time_factor']:.0f}x",
     ]
@@ -235,11 +240,17 @@ def scenes_command(args):
 
 def params_command(args):
     if args.node:
-        from ..device.descriptors import DEFAULT_SCENE, node_values
+        from ..device.descriptors import DEFAULT_SCENE, REALTIME_SOLVER_WHY, node_values
+        from ..solver.simulator import fixed_step
         values = node_values(args.scene or DEFAULT_SCENE)
         source = (f"cvt_node's start values (base scene {args.scene or DEFAULT_SCENE}; "
                   "solver.method, unless the scene sets it: rk4 starting in realtime, "
                   "dopri5 in lockstep or fast)")
+        if not args.markdown:
+            print(f"# {REALTIME_SOLVER_WHY}")
+            if values['solver.method'] == 'rk4':
+                print(f"# this scene in realtime: "
+                      f"{fixed_step(values, values['paths.count'] > 1)[2]}")
     else:
         values = load_scene(args.scene) if args.scene else load_scene(None)
         source = f"scene {resolve(args.scene)}" if args.scene else \

@@ -5,15 +5,16 @@ clutch_output, output_shaft and the actuator's prismatic joint crank_length; tra
 a controller started after the device still gets the present sample) and publishes one
 ``crank_length_cmd`` (std_msgs/Float64 [m]) per sample — in lockstep that command is what
 advances the device one control period. The set point [rad/s] comes from the parameter
-``setpoint``, the topic ``speed_setpoint`` (std_msgs/Float64, latched; overrides the parameter
+``setpoint``, the topic ``speed_setpoint`` (std_msgs/Float64; any reliable publisher, volatile
+as ``ros2 topic pub`` or latched, as the device's command topics take; overrides the parameter
 from its arrival on) or a set-point file (``setpoint_file``: CSV ``t,setpoint``, the value in
 force from each t on, read against the samples' simulation-time stamps — reproducible to the
 period, which is how ``cvt-sim scenario run --backend dds`` drives it). ``~/cycle_mean_speed``
 and ``~/setpoint`` (Float64 [rad/s]) publish the law's measurement and the set point it
 follows once per crank turn, when it acts (the Foxglove layout plots them).
 
-    cvt_speed_controller --ros-args -p setpoint:=60.0 -p kp:=2e-3 -p ki:=4e-3
-    ros2 topic pub --once /speed_setpoint std_msgs/msg/Float64 "{data: 70.0}"
+    .venv/bin/cvt_speed_controller --ros-args -p setpoint:=60.0 -p kp:=2e-3 -p ki:=4e-3
+    ./run.sh ros2 topic pub --once /speed_setpoint std_msgs/msg/Float64 "{data: 70.0}"
 """
 import argparse
 import math
@@ -91,8 +92,11 @@ class SpeedControllerNode(Node):
         self.setpoint_publisher = self.create_publisher(Float64, '~/setpoint', 10)
         self.state_subscription = self.create_subscription(
             JointState, STATE_TOPIC, self.state_callback, LATCHED)
+        # a command input: volatile, so that any reliable publisher matches (a transient-local
+        # subscription refuses the volatile publishers of `ros2 topic pub` and most nodes)
         self.speed_setpoint_subscription = self.create_subscription(
-            Float64, SETPOINT_TOPIC, self.speed_setpoint_callback, LATCHED)
+            Float64, SETPOINT_TOPIC, self.speed_setpoint_callback,
+            interface.command_subscription_qos())
         self._command = Float64()
         self._speed = Float64()
         self._setpoint = Float64()
@@ -192,6 +196,11 @@ def spin(make_node, args=None, prog=None, description=None):
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RuntimeError:
+        # SIGINT shut the context down while a callback was publishing (RCLError "publisher's
+        # context is invalid"): the same stop, not an error; one while running is an error
+        if rclpy.ok():
+            raise
     finally:
         node.destroy_node()
         rclpy.try_shutdown()

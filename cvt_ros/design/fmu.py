@@ -25,10 +25,14 @@ MODULE = 'cvt_transmission'          # the model's module inside the FMU (resour
 
 def fmu_parameters(values):
     """name → (kind 'real' | 'integer' | 'string', unit, meaning) of the FMU's parameters; the
-    names left out (not finite)."""
+    names left out (not finite; the number of paths and their offsets, which set how many
+    variables the FMU has: fixed at the scene's, as FMI 2.0 has no structural parameters)."""
     table, fixed = {}, []
     for spec in parameters.PHYSICS_PARAMETERS:
         value = values[spec.name]
+        if spec.name.startswith('paths.'):
+            fixed.append(spec.name)
+            continue
         if isinstance(value, str):
             kind = 'string'
         elif isinstance(value, bool):
@@ -80,7 +84,7 @@ def build_fmu(scene, out, overrides=None, step=1e-3, stop_time=10.0, origins=Non
                    f"[m], load_torque_cmd [N·m]; outputs <joint>.angle/.speed (crank, rocker, "
                    f"clutch_output, output_shaft), crank_length, clutch_engaged, clutch_torque; "
                    f"{len(table)} parameters"
-                   + (f" ({', '.join(fixed)} fixed: not finite)" if fixed else ''))
+                   + (f" ({', '.join(fixed)} fixed at the scene's values)" if fixed else ''))
     return out, description
 
 

@@ -366,6 +366,7 @@ class Device:
             'grashof_bound': float(sim.grashof_bound), 'load_torque': sim.load_torque,
             'engaged': bool(sim.engaged), 'residual': float(energy['residual']),
             'relative_residual': float(energy['relative_residual']),
+            'self_check': sim.self_check(),
         }
 
 

@@ -25,10 +25,19 @@ from ..scene import ROS_OWN_PARAMETERS, SceneError, is_ros_own, read_scene
 DEFAULT_SCENE = 'conveyor'
 # The node's solver when neither the scene nor -p names one, by the time_mode it starts in:
 # realtime takes rk4, fixed sub-steps with events located inside the step, so every control period
-# costs the same (dopri5's adaptive steps make it vary); lockstep and fast have no deadline and take
-# the offline default dopri5: error-controlled, the same answer as `cvt-sim run` of the scene, and
-# a third of rk4's right-hand sides per period (BENCHMARKS.md, "ROS node").
+# costs about the same (dopri5's adaptive steps make it vary); lockstep and fast have no deadline
+# and take the offline default dopri5: error-controlled, the same answer as `cvt-sim run`.
 REALTIME_SOLVER = 'rk4'
+#: Why (``cvt-sim params --node``, docs/node.md): rk4 is exact on every shipped scene since
+#: issue 32 (test_events.py::test_the_realtime_solver_is_right_on_every_shipped_scene).
+REALTIME_SOLVER_WHY = (
+    "realtime starts with solver.method rk4: fixed sub-steps (solver.fixed_step, refined until "
+    "h·λ ≤ 0.5 for the fastest rate it integrates), so every control period costs about the same "
+    "(BENCHMARKS.md, Cost per control period); the open clutch's output runs apart from the "
+    "steps, exactly, as with dopri5, and every switch is located inside its step: on every "
+    "shipped scene it makes dopri5's switches. lockstep and fast start with dopri5 "
+    "(error-controlled, the answer of `cvt-sim run`). /diagnostics' key 'solver' says which runs "
+    "and its 'possible_missed_events' whether the self-check suspects a missed clutch event")
 # parameters rclpy declares itself: allowed in params files and -p (scene.ROS_OWN_PARAMETERS)
 FOREIGN_PARAMETERS = ROS_OWN_PARAMETERS
 

@@ -2,7 +2,8 @@
 table a DiagnosticStatus carries (docs/node.md, "Diagnostics"). No ROS here: the node wraps the
 table in diagnostic_msgs.
 
-Levels: OK, WARN (missed deadlines, resyncs, refused or lost commands in the last window), ERROR
+Levels: OK, WARN (missed deadlines, resyncs, refused or lost commands in the last window; a
+possibly missed clutch event since the start: the solver's self-check, docs/solver.md), ERROR
 (a simulation fault). The "window" is the wall time since the previous report (~1 s).
 """
 import math
@@ -77,6 +78,9 @@ class Reporter:
         step = step_ns.percentiles() or [math.nan] * 3
         jitter = stats.jitter_ns.percentiles() or [math.nan] * 3
         mode, state, fault = settings['mode'], settings['state'], settings['fault']
+        check = snap.get('self_check') or {}
+        missed_events = check.get('possible_missed_events', 0)
+        first_missed = check.get('first_possible_missed_event_s') or math.nan
         realtime = mode == 'realtime'
         values = [
             ('time_mode', mode), ('state', state),
@@ -115,6 +119,9 @@ class Reporter:
             ('commands_dropped', str(stats.dropped)),
             ('commands_lost', str(stats.lost)),
             ('realtime_policy', settings.get('policy', '')),
+            ('solver', check.get('solver', '')),
+            ('possible_missed_events', str(missed_events)),
+            ('first_possible_missed_event_time', f"{first_missed:.6f}"),
             ('fault', fault or ''),
         ]
         if fault:
@@ -123,6 +130,12 @@ class Reporter:
             level = WARN
             message = (f"behind schedule: {window_missed} missed deadlines, {window_resyncs} "
                        f"resyncs in the last window")
+        elif missed_events:
+            level = WARN
+            message = (f"{missed_events} possibly missed clutch events (first at t = "
+                       f"{first_missed:.6f} s): the solver found a guard beyond its band after "
+                       f"a step ({check.get('solver', '')}); a tighter solver.rtol or "
+                       f"solver.fixed_step resolves it")
         elif window_lost:
             level, message = WARN, f"{window_lost} commands lost or dropped"
         elif window_refused:

@@ -555,6 +555,7 @@ class CvtSimNode(Node):
         recorder, self._recorder = self._recorder, None
         if recorder is not None:
             with self._record_lock:
+                recorder.record_self_check(self.device.sim.self_check())
                 recorder.close()
 
     def _hand_to_recorder(self, topic, msg, t_ns):

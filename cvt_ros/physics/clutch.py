@@ -4,10 +4,15 @@
     DISENGAGED ──(slip s = ω3 − v falls through 0)──▶ ENGAGED    reset: ω3 := v (s = 0, no impact)
 
 Release guard: the clutch torque Tc = J3·v' + Ts (``torque``, default: the clutch cannot pull) or
-the paper's torsion twist θ = φ3 − φ4 (``twist``; the two coincide as J3 → 0). The twist rule
-releases when θ has fallen to zero *and* the clutch can open (the open clutch's slip acceleration
-s'_free ≥ 0); while θ ≤ 0 and s'_free < 0 the clutch stays closed, and the release comes when
-s'_free rises through zero: guard max(θ, −k·s'_free).
+the paper's torsion twist θ = φ3 − φ4 (``twist``; the two coincide as J3 → 0 on an undamped
+shaft). The twist rule releases when θ has fallen to zero *and* the clutch can open, Tc ≤ 0
+(complementarity, below): guard max(θ, Tc/c), continuous, in radians. Where the two disagree,
+complementarity decides: with θ ≤ 0 a clutch that still pushes (Tc > 0) stays closed until Tc
+falls through zero, and once θ ≤ 0 no negative clutch torque is held. (While θ > 0 the paper's
+rule holds the clutch whatever Tc: J3's inertia or the damper may pull on it, which is the rule.)
+The test used to be the open clutch's slip acceleration s'_free ≥ 0, which is the same for
+J3 > 0 but not for a massless damped node, whose open slip jumps at once to −Tc/k: there it held
+the clutch with negative twist and Tc down to −301 N·m (issue 32).
 
 Complementarity decides the mode at s = 0 (t = 0, after parameter changes, at a located switch):
 engage iff the disengaged dynamics would drive the slip negative, s'_free < 0. For one unilateral
@@ -22,7 +27,6 @@ from .compiled import inline_kernel, kernel
 from .dynamics import rhs
 from .layout import (
     AUX_CLUTCH_TORQUE,
-    AUX_FREE_SLIP_RATE,
     AUX_ROCKER_ACCEL,
     AUX_ROCKER_SPEED,
     AUX_SLIP,
@@ -31,6 +35,7 @@ from .layout import (
     ENGAGED,
     OMEGA3,
     OMEGA4,
+    P_C,
     P_RELEASE,
     P_RIGID,
     P_TORQUE_SCALE,
@@ -41,7 +46,6 @@ from .layout import (
 SLIP_TOLERANCE = 1e-10     # relative to the member speeds
 TORQUE_TOLERANCE = 1e-10   # relative to the scene's torque scale
 TWIST_TOLERANCE = 1e-13    # [rad]
-TWIST_RATE_SCALE = 1e-6    # [s²]: a free slip acceleration in the twist rule's guard, as a twist
 SLIP_RATE_TOLERANCE = 1e-10  # relative to the member accelerations
 CONTACT_PROBE_TIME = 1e-6  # [s] one look-ahead step at a higher-order contact
 PROBE_STEPS = 3
@@ -61,15 +65,12 @@ def uses_twist_release(P):
 def clutch_guard(mode, y, dy, aux, P):
     """Witness value g (switch when g falls through 0) and its time derivative (nan if unknown).
 
-    ENGAGED: Tc [N·m] (or θ [rad] with twist release). DISENGAGED: slip s = ω3 − v [rad/s].
+    ENGAGED: Tc [N·m] (or max(θ, Tc/c) [rad] with twist release). DISENGAGED: slip s = ω3 − v
+    [rad/s].
     """
     if mode == ENGAGED:
         if uses_twist_release(P):
-            if y[TWIST] > 0.0:
-                return y[TWIST], dy[TWIST]
-            # twist at or below zero: released once the clutch can open (s'_free ≥ 0), so the
-            # release time does not depend on where a step happens to end
-            return max(y[TWIST], -TWIST_RATE_SCALE * aux[AUX_FREE_SLIP_RATE]), float('nan')
+            return max(y[TWIST], aux[AUX_CLUTCH_TORQUE] / P[P_C]), float('nan')
         return aux[AUX_CLUTCH_TORQUE], float('nan')
     return aux[AUX_SLIP], aux[AUX_SLIP_RATE]
 
@@ -77,8 +78,10 @@ def clutch_guard(mode, y, dy, aux, P):
 @inline_kernel
 def guard_scale(mode, y, aux, P):
     """The size of the guard in this machine: the scene's torque scale [N·m] (ENGAGED, torque
-    release) or the member speeds [rad/s] (DISENGAGED)."""
+    release; over c [rad] with twist release) or the member speeds [rad/s] (DISENGAGED)."""
     if mode == ENGAGED:
+        if uses_twist_release(P):
+            return P[P_TORQUE_SCALE] / P[P_C]
         return P[P_TORQUE_SCALE]
     w3 = y[OMEGA3] if P[P_RIGID] == 0.0 else y[OMEGA4]
     return 1.0 + abs(aux[AUX_ROCKER_SPEED]) + abs(w3)

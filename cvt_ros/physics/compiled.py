@@ -9,10 +9,23 @@ process and loaded from the disk cache in another gave results that differ in th
 offline core's, to the bit" whenever the two processes had not compiled alike. Without it they
 agree to the bit whichever process compiled (test_compiled_alike.py), for ~3 % of speed.
 
-``kernel`` for functions the solver calls a few times per step; ``inline_kernel`` for the small
-ones it calls many times per step (linkage, torques, dense output, guards): numba inlines those
-into their callers, which removes a call with half a dozen array arguments each time (measured
-on the paper scene: 55 ns → 20 ns for the rocker speed).
+The rule for every kernel of the package (physics/, solver/, and any room that compiles): use
+these decorators, not numba's ``inline='always'`` (a bare ``njit`` only for an entry point called
+from Python that needs other flags: drives.plan_into's strict IEEE, solver/period.py's).
+
+* ``kernel``: compiled once and called. The default.
+* ``inline_kernel``: compiled once, then inlined by LLVM at every call site (``forceinline``:
+  LLVM's alwaysinline), for the small functions the solver calls many times per step (linkage,
+  torques, dense output, guards), where a call that passes half a dozen arrays costs more than
+  the work (the rocker speed: 55 ns called, 20 ns inlined). Not numba's ``inline='always'``,
+  which copies the callee's IR into each call site and types and lowers it there again,
+  inlines of inlines multiplied: at c1dbe6f a third of ``cvt-sim warmup`` went into copying
+  IR alone; LLVM's inlining costs a fraction of that (BENCHMARKS.md, Compile time).
+* Both are compiled once per set of argument *types*: a kernel called with a constant
+  (``take_step(DOPRI5, FULL, …)``, ``locate_root(True, …)``) is typed with the constant's type,
+  not with its value (numba's default compiles one specialization per literal value: 2–4 of
+  the biggest kernels). A path that a constant selects is a runtime branch, predicted well.
+  (``OneSignature``; test_compiled_alike.py checks that no kernel has two signatures.)
 
 No reference counting: numba's runtime (NRT) increments and decrements an atomic count on every
 array view a kernel makes or passes on (a locked instruction, ~20 cycles each, hundreds per
@@ -31,6 +44,8 @@ import glob
 import os
 
 from numba import njit
+from numba.core import types
+from numba.core.registry import CPUDispatcher
 
 FASTMATH = {'nsz', 'arcp', 'contract', 'afn'}
 _PACKAGE = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -58,14 +73,30 @@ def drop_stale_caches():
 drop_stale_caches()
 
 
+class OneSignature(CPUDispatcher):
+    """A dispatcher that types a call from compiled code by its arguments' types, never by the
+    values of constant ones (numba's literal types): one compiled version per signature."""
+
+    def get_call_template(self, args, kws):
+        return super().get_call_template(tuple(types.unliteral(a) for a in args),
+                                         {k: types.unliteral(v) for k, v in kws.items()})
+
+
+def _one_signature(dispatcher):
+    dispatcher.__class__ = OneSignature
+    return dispatcher
+
+
 def kernel(func):
-    return njit(cache=True, error_model='numpy', fastmath=FASTMATH, _nrt=False)(func)
+    return _one_signature(njit(cache=True, error_model='numpy', fastmath=FASTMATH,
+                               forceinline=False, _nrt=False)(func))
 
 
 def inline_kernel(func):
-    return njit(cache=True, error_model='numpy', fastmath=FASTMATH, inline='always',
-                _nrt=False)(func)
+    return _one_signature(njit(cache=True, error_model='numpy', fastmath=FASTMATH,
+                               forceinline=True, _nrt=False)(func))
 
 
 def allocating_kernel(func):
-    return njit(cache=True, error_model='numpy', fastmath=FASTMATH)(func)
+    return _one_signature(njit(cache=True, error_model='numpy', fastmath=FASTMATH,
+                               forceinline=False)(func))

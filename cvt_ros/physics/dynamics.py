@@ -57,13 +57,11 @@ from .layout import (
     P_J4,
     P_KD,
     P_MOTOR_MODEL,
-    P_RELEASE,
     P_RIGID,
     P_SIGMA,
     PHI1,
     PHI2,
     PHI4,
-    RELEASE_TWIST,
     TWIST,
     W_ACTUATOR,
     W_DAMPING,
@@ -229,20 +227,6 @@ def rhs(t, y, mode, P, ACT, dy, aux):
     aux[AUX_CRANK_LENGTH] = a
     aux[AUX_ACTUATOR_POWER] = p_act
     aux[AUX_FREE_SLIP_RATE] = aux[AUX_SLIP_RATE]
-    if engaged and not rigid and P[P_RELEASE] == RELEASE_TWIST:
-        # the paper's twist release needs the clutch to be able to open: the slip acceleration
-        # of the open clutch (J1 + J2 and J3 apart) at this state, s'_free = ω3'_free − v'_free
-        if paper:
-            if speed_source:
-                dv_free = rc / f2
-            else:
-                lam = (rc - f1 * m1 / J1) / (f1 * f1 / J1 + f2 * f2 / J2)
-                dv_free = f2 * lam / J2
-        else:
-            dw1_free = 0.0 if speed_source else (
-                (m1 - J2 * u * kappa) / (J1 + J2 * u * u))
-            dv_free = u * dw1_free + kappa
-        aux[AUX_FREE_SLIP_RATE] = (-ts / J3 if J3 > 0.0 else -tc) - dv_free
     energy = 0.5 * (J1 * w1 * w1 + J2 * v * v + J3 * w3 * w3 + J4 * w4 * w4)
     if not rigid:
         energy += 0.5 * c * theta * theta

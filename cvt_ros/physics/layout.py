@@ -103,7 +103,7 @@ AUX_CONSTRAINT = 8        # f(φ1, φ2, a) [m²] (paper formulation drift; 0 in 
 AUX_CRANK_LENGTH = 9      # a(t) [m]
 AUX_ACTUATOR_POWER = 10   # power the crank actuator puts in [W]
 AUX_ENERGY = 11           # T + Π [J]
-AUX_FREE_SLIP_RATE = 12   # s' the open clutch would have here (engaged, twist release) [rad/s²]
+AUX_FREE_SLIP_RATE = 12   # = AUX_SLIP_RATE (the twist rule read it once; now Tc: clutch.py)
 N_AUX = 13
 
 # --- crank actuator profile: rows of (t_start, a0, a'0, a'') -----------------------------------

@@ -50,8 +50,8 @@ from ..solver.output import COL
 from .errors import RecordingError
 from .writer import DEFAULT_CHUNK_SIZE, BagWriter
 
-__all__ = ['FORMAT', 'METADATA_NAME', 'PARAMETER_CHANGE_NAME', 'SimulationRecorder',
-           'check_target', 'record_run', 'write_run']
+__all__ = ['FORMAT', 'METADATA_NAME', 'PARAMETER_CHANGE_NAME', 'SELF_CHECK_NAME',
+           'SimulationRecorder', 'check_target', 'record_run', 'write_run']
 
 #: Value of the ``format`` key of the ``cvt_ros`` metadata record.
 FORMAT = 'cvt_ros recording 1'
@@ -59,6 +59,8 @@ FORMAT = 'cvt_ros recording 1'
 METADATA_NAME = 'cvt_ros'
 #: Name of the metadata records of live parameter changes.
 PARAMETER_CHANGE_NAME = 'cvt_ros.parameter_change'
+#: Name of the metadata record of the solver's self-check (Simulator.self_check(), at the end).
+SELF_CHECK_NAME = 'cvt_ros.solver_check'
 #: Data is on disk (in complete chunks) at most this long after it was written [s].
 FLUSH_INTERVAL = 0.5
 #: Sample-row columns behind joint_states' position, velocity and effort, joint by joint, the
@@ -292,6 +294,14 @@ class SimulationRecorder:
                 'time_ns': str(I.stamp_ns(t) + self._offset_ns),
                 'parameters': parameters_yaml(changes)})
 
+    def record_self_check(self, check: Mapping[str, Any]) -> None:
+        """The solver's self-check (``Simulator.self_check()``: method and step, possibly missed
+        clutch events) as a metadata record: whoever reads the file later sees whether the run
+        that made it may have missed an event (docs/solver.md)."""
+        if self._error is None and check:
+            self._add_metadata(SELF_CHECK_NAME, {k: '' if v is None else v
+                                                 for k, v in check.items()})
+
     # ------------------------------------------------------------------ lifecycle
     def close(self) -> None:
         """Finish the file (summary, statistics, rosbag2 metadata, fsync). Idempotent; safe in
@@ -341,7 +351,14 @@ def record_run(recorder: SimulationRecorder, result: Any, *, clock: bool = True)
             count += recorder.record_clock(row[0])
     for switch in switches[k:]:  # after the last sample (duration not a multiple of the grid)
         count += recorder.record_switch(switch)
+    diagnostics = getattr(result, 'diagnostics', {})
+    recorder.record_self_check({k: diagnostics[k] for k in SELF_CHECK_KEYS if k in diagnostics})
     return count
+
+
+#: The keys of a run's diagnostics that make its self-check record (Simulator.self_check()).
+SELF_CHECK_KEYS = ('solver', 'possible_missed_events', 'first_possible_missed_event_s',
+                   'stray_samples', 'first_stray_sample_s')
 
 
 def check_target(path: str | os.PathLike[str], overwrite: bool = False) -> None:

@@ -1,9 +1,11 @@
 """``--backend dds``: the device as ``cvt_node`` in a process of its own, over ROS 2.
 
-The node runs on a ROS domain held for this run alone (``cvt_ros.device.domains``), from a
-parameters file with every scene value of the scenario (so it runs exactly the offline
-model), ``time_mode: lockstep`` and ``steps_per_command: 1``: each crank_length_cmd advances one
-control period. The protocol (docs/lockstep.md):
+The node runs on a ROS domain held for this run alone (``cvt_ros.device.domains``; the one
+ROS_DOMAIN_ID names when it is set and free, so that ``ros2 topic echo`` in the same shell sees
+the run; ``DdsPlant.domain``, printed by ``cvt-sim scenario run``), from a parameters file with
+every scene value of the scenario (so it runs exactly the offline model), ``time_mode:
+lockstep`` and ``steps_per_command: 1``: each crank_length_cmd advances one control period.
+The protocol (docs/lockstep.md):
 
 * start: the node publishes the t = 0 sample on ``state`` (latched); the harness waits for it and
   for its command publishers to be matched — nothing is sent into the void;
@@ -14,6 +16,11 @@ control period. The protocol (docs/lockstep.md):
   the periods where the load changes), and the node applies each change at the start of its
   period on the k·period grid — a load command on its own topic would race the crank command
   (two topics have no common order in DDS). Set-point changes live in the controller.
+
+The node records the run (``record.path``): the clutch switches are taken from its recording,
+at their own simulation times (``clutch_engaged`` carries no stamp: on the wire a switch is only
+known to lie in the period whose sample follows it), and in realtime its /diagnostics too: the
+node's timing (missed deadlines, jitter, resyncs) as ``node_timing``.
 
 With ``controller_cmd`` the controller is an external process (e.g. ``cvt_speed_controller``),
 started with ROS_DOMAIN_ID of the run and CVT_SETPOINT_FILE naming a CSV of the set point per
@@ -59,8 +66,25 @@ _FILLED = len(_FILLED_COLUMNS)
 WAIT_S = 0.05               # one wait for a sample; the liveness checks between waits
 
 
+# the node's timing in a realtime run, from its last /diagnostics (DiagnosticStatus keys)
+TIMING_KEYS = ('missed_deadlines', 'resyncs', 'slipped_s', 'jitter_p50_us', 'jitter_p99_us',
+               'jitter_max_us', 'step_time_p50_us', 'step_time_p99_us', 'step_time_max_us',
+               'sim_time')
+
+
 class DdsError(SimulationError):
     """The node or the DDS link failed (the node's log tail is in the message)."""
+
+
+def lease_domain():
+    """A ROS domain for a run's node: the one ROS_DOMAIN_ID names when it is set and no other
+    run holds it (what the user's other terminals use), else a free one of its own."""
+    wanted = os.environ.get('ROS_DOMAIN_ID', '').strip()
+    if wanted.isdigit():
+        lease = domains.try_acquire(int(wanted))
+        if lease is not None:
+            return lease
+    return domains.acquire()
 
 
 def node_parameters(values, period, mode='lockstep', rtf=1.0):
@@ -119,17 +143,19 @@ class DdsPlant:
         self.external = controller_cmd
         self.realtime = realtime
         self._own_lease = domain is None
-        self.lease = domains.acquire() if domain is None else domain
+        self.lease = lease_domain() if domain is None else domain
+        self.domain = self.lease.domain
+        self.node_timing = None     # realtime: the node's timing (TIMING_KEYS), from its recording
+        self.diagnostics = []       # realtime: its /diagnostics messages, (t [s], CDR bytes)
         self.tmp = tempfile.TemporaryDirectory(prefix='cvt_scenario_')
         self.log = log or open(os.path.join(self.tmp.name, 'node.log'), 'w+')
         # realtime too starts in lockstep: the t = 0 sample and the handshake first, then the
         # harness switches time_mode (a live parameter) and the wall clock takes over
         params_file = os.path.join(self.tmp.name, 'scene.yaml')
         params = node_parameters(plant_values(scenario), self.period, 'lockstep', realtime or 1.0)
-        # realtime, external controller: the harness sees the newest samples only; the whole
-        # trace comes from the node's own recording
-        self.recording = os.path.join(self.tmp.name, 'run.mcap') if (realtime or controller_cmd) \
-            else ''
+        # the node's own recording: the switches at their times; realtime, external controller:
+        # the whole trace (the harness sees the newest samples only)
+        self.recording = os.path.join(self.tmp.name, 'run.mcap')
         params['record.path'] = self.recording
         # the load schedule goes to the node up front (parameter disturbance.file): it applies
         # each change at the start of its period on the k·period grid, as offline does
@@ -325,21 +351,28 @@ class DdsPlant:
         return self._next_sample()
 
     def recorded_samples(self, t_end):
-        """Realtime: every sample and switch up to ``t_end`` from the node's own recording
-        (the harness saw only the newest samples); None in lockstep, where it saw them all.
-        Stops the node (SIGINT finishes the file)."""
+        """From the node's own recording up to ``t_end`` (it stops the node: SIGINT finishes the
+        file): realtime or an external controller, (every sample, every switch, the external
+        controller's commands or None) — the harness saw only the newest samples; lockstep,
+        (None, every switch, None) — it saw every sample, but each switch only with the sample
+        after it. Realtime also sets ``node_timing`` and ``diagnostics``."""
         if not self.recording:
             return None
         from ..recording.reader import read_messages
         self._stop(self.proc)
         end_ns = round(t_end * 1e9)
         rows, switches, engaged, commands = [], [], None, []
-        topics = ['/joint_states', '/clutch_engaged', '/crank_length_cmd']
+        every = bool(self.realtime or self.external)
+        topics = ['/clutch_engaged'] + (['/joint_states', '/crank_length_cmd', '/diagnostics']
+                                        if every else [])
         for m in read_messages(self.recording, topics, strict=False):
             if m.log_time_ns > end_ns:
                 break
             if m.topic == '/crank_length_cmd':   # logged at the sample it answered
                 commands.append((m.log_time_ns * 1e-9, float64_value(m.data)))
+                continue
+            if m.topic == '/diagnostics':
+                self.diagnostics.append((m.log_time_ns * 1e-9, m.data))
                 continue
             if m.topic == '/clutch_engaged':
                 state = m.data[-1] == 1
@@ -351,6 +384,10 @@ class DdsPlant:
             if self.rows is None:   # (the joint layout, if no sample was seen)
                 self.rows = self._sample_rows()
             rows.append(self.rows.fill(*sample).copy())
+        if self.realtime and self.diagnostics:
+            self.node_timing = node_timing(self.diagnostics[-1][1])
+        if not every:
+            return None, switches, None
         return np.array(rows), switches, (commands if self.external else None)
 
     @staticmethod
@@ -382,4 +419,20 @@ class DdsPlant:
         self.tmp.cleanup()
 
 
-__all__ = ['DdsError', 'DdsPlant', 'SampleRows', 'node_parameters', 'write_params_file']
+def node_timing(diagnostics_cdr):
+    """The node's timing (TIMING_KEYS → float) from one /diagnostics message (CDR bytes)."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.serialization import deserialize_message
+    timing = {}
+    for status in deserialize_message(diagnostics_cdr, DiagnosticArray).status:
+        for kv in status.values:
+            if kv.key in TIMING_KEYS and kv.key not in timing:
+                try:
+                    timing[kv.key] = float(kv.value)
+                except ValueError:
+                    pass
+    return timing or None
+
+
+__all__ = ['DdsError', 'DdsPlant', 'SampleRows', 'TIMING_KEYS', 'lease_domain', 'node_parameters',
+           'node_timing', 'write_params_file']

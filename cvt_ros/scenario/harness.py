@@ -49,7 +49,10 @@ class HarnessError(RuntimeError):
 
 
 def load_controller(spec, scenario):
-    """``MODULE:FACTORY`` → the controller ``FACTORY(scenario)`` (or ``FACTORY()``) returns."""
+    """``MODULE:FACTORY`` → the controller ``FACTORY(scenario)`` returns, or ``FACTORY()`` when it
+    takes no argument. A class is the controller's type, its constructor's parameters its own
+    settings (``MyPI(kp=2e-3, ...)``): it gets the scenario only as a parameter named
+    ``scenario``, else it is built with its defaults."""
     module_name, sep, attr = str(spec).partition(':')
     if not sep or not module_name or not attr:
         raise HarnessError(f"--controller {spec!r}: expected MODULE:FACTORY, e.g. {REFERENCE}")
@@ -67,9 +70,10 @@ def load_controller(spec, scenario):
         if factory is None:
             raise HarnessError(f"--controller {spec!r}: {module_name} has no {attr}")
     try:
-        takes_scenario = bool(inspect.signature(factory).parameters)
+        parameters = inspect.signature(factory).parameters
+        takes_scenario = 'scenario' in parameters if inspect.isclass(factory) else bool(parameters)
     except (TypeError, ValueError):
-        takes_scenario = True
+        takes_scenario = not inspect.isclass(factory)
     try:
         controller = factory(scenario) if takes_scenario else factory()
     except (Exception, SystemExit) as exc:   # noqa: BLE001
@@ -235,7 +239,9 @@ def _loop(scenario, controller, plant, controller_name, progress):
     # metrics are computed from these times
     samples[:, 0] = np.round(samples[:, 0] * 1e9) * 1e-9
     recorded = plant.recorded_samples(k * dt) if hasattr(plant, 'recorded_samples') else None
-    if recorded is not None and len(recorded[0]):
+    if recorded is not None and recorded[0] is None:
+        switches = recorded[1]   # dds lockstep: the switches at their own times (its recording)
+    elif recorded is not None and len(recorded[0]):
         # realtime: the device's own recording has every period; the controller saw `keep`
         samples, switches, external = recorded
         keep = np.clip(np.round(samples[:, 0] / dt).astype(int), 0, n)
@@ -243,10 +249,16 @@ def _loop(scenario, controller, plant, controller_name, progress):
             commands = np.full(n + 1, np.nan)
             for t, value in external:
                 commands[min(int(round(t / dt)), n)] = value
+    # the solver's self-check where the plant runs in this process (a node over DDS reports it
+    # on its /diagnostics and in its own recording)
+    self_check = plant.self_check() if hasattr(plant, 'self_check') else None
     grid = keep * dt   # (k·period: the same numbers as the chunks the loop read)
     return ScenarioRun(scenario=scenario, backend=plant.name, controller=controller_name,
                        samples=samples, setpoint=scenario.setpoint.sample(grid),
                        load=scenario.load.sample(grid),
                        commands=commands[keep], switches=switches, clamped=clamped,
                        wall_time=wall, error=error, exception=exception,
-                       realtime=getattr(plant, 'realtime', None))
+                       realtime=getattr(plant, 'realtime', None),
+                       domain=getattr(plant, 'domain', None),
+                       node_timing=getattr(plant, 'node_timing', None),
+                       diagnostics=list(getattr(plant, 'diagnostics', ())), self_check=self_check)

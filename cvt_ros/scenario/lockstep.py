@@ -34,5 +34,9 @@ class LockstepPlant:
             raise SimulationError(self.device.fault)
         return period.row, [(s.t, s.engaged) for s in period.events]
 
+    def self_check(self):
+        """The solver's self-check (Simulator.self_check: possibly missed clutch events)."""
+        return self.device.sim.self_check()
+
     def close(self):
         pass

@@ -48,5 +48,9 @@ class OfflinePlant:
             return row, NO_SWITCHES
         return row, [(s.t, s.engaged) for s in switches if s.kind != 'graze']
 
+    def self_check(self):
+        """The solver's self-check (Simulator.self_check: possibly missed clutch events)."""
+        return self.sim.self_check()
+
     def close(self):
         pass

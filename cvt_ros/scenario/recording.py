@@ -1,16 +1,17 @@
 """A scenario run as an MCAP recording (rosbag2 format, as the node records): joint_states every
 control period, clutch_engaged at each switch's exact time, /clock, the crank-length commands the
 controller gave and the load commands of the schedule at the period they took effect, and the
-set point on ``/setpoint`` (std_msgs/Float64, at t = 0 and at each change). ``cvt-sim analyze``,
+set point on ``/setpoint`` (std_msgs/Float64, at t = 0 and at each change), and of a realtime
+run over DDS the node's /diagnostics (its timing: missed deadlines, jitter). ``cvt-sim analyze``,
 ``cvt-sim replay`` and the mcap/rosbags libraries read it like any recording of the node."""
 import numpy as np
 
+from ..analysis.bag import SETPOINT_TOPIC
 from ..interface import QOS, float64_cdr, stamp_ns
 from ..recording.errors import RecordingError
 from ..recording.recorder import SimulationRecorder, check_target
 from ..solver.output import COL
 
-SETPOINT_TOPIC = '/setpoint'
 SETPOINT_TYPE = 'std_msgs/msg/Float64'
 SETPOINT_QOS = dict(QOS['crank_length_cmd'])
 
@@ -35,7 +36,8 @@ def write_mcap(run, path, overwrite=False):
     setpoint_change = set((np.flatnonzero(np.diff(run.setpoint) != 0) + 1).tolist()) | {0}
     load_change = set(load_change.tolist())
     switches = run.switches
-    count, j = 0, 0
+    diagnostics = run.diagnostics
+    count, j, d = 0, 0, 0
     with recorder:
         count += recorder.record_clutch_state(bool(samples[0, COL['engaged']]), t[0])
         for k, row in enumerate(samples):
@@ -43,6 +45,10 @@ def write_mcap(run, path, overwrite=False):
             while j < len(switches) and stamp_ns(switches[j][0]) <= ns:
                 count += recorder.record_clutch_state(switches[j][1], switches[j][0])
                 j += 1
+            while d < len(diagnostics) and stamp_ns(diagnostics[d][0]) <= ns:
+                count += recorder.write(recorder.topics['diagnostics'], diagnostics[d][1],
+                                        stamp_ns(diagnostics[d][0]))
+                d += 1
             if not recorder.record_sample(row):
                 break
             count += 1 + recorder.record_clock(row[0])
@@ -52,4 +58,6 @@ def write_mcap(run, path, overwrite=False):
                 count += recorder.record_command('load_torque_cmd', float(run.load[k]), row[0])
             if k < len(commands) and np.isfinite(commands[k]):
                 count += recorder.record_command('crank_length_cmd', float(commands[k]), row[0])
+        if run.self_check is not None:
+            recorder.record_self_check(run.self_check)
     return count, (errors[0] if errors else None)

@@ -17,7 +17,10 @@ class ScenarioRun:
     sensed one); ``setpoint``, ``load``: the schedules at t_k; ``commands``: the crank-length
     command of period k after the limiter (NaN: the controller kept the last one); ``switches``:
     (t, engaged) clutch switches; ``error``: why the run stopped early (None: it ran to the end);
-    ``exception``: what the controller raised, with its traceback (None otherwise)."""
+    ``exception``: what the controller raised, with its traceback (None otherwise); dds back end:
+    ``domain`` (the node's ROS domain), and against the wall clock ``node_timing`` (the node's
+    missed deadlines, resyncs, jitter and step time from its last /diagnostics: TIMING_KEYS of
+    scenario/dds.py) and ``diagnostics`` (its /diagnostics messages: (t [s], CDR bytes))."""
     scenario: object
     backend: str
     controller: str
@@ -31,6 +34,18 @@ class ScenarioRun:
     error: str = None
     exception: BaseException = None
     realtime: float = None      # dds back end against the wall clock: its real-time factor
+    domain: int = None          # dds back end: the node's ROS domain
+    node_timing: dict = None    # dds, realtime: the node's timing
+    diagnostics: list = field(default_factory=list)   # dds, realtime: the node's /diagnostics
+    # the solver's self-check (Simulator.self_check(); None: the plant ran in another process)
+    self_check: dict = None
+
+    @property
+    def possible_missed_events(self):
+        """Clutch events the solver may have missed in this run (its self-check), or None."""
+        if self.self_check is None:
+            return None
+        return self.self_check['possible_missed_events'] + self.self_check['stray_samples']
 
     @property
     def backend_text(self):
@@ -144,12 +159,14 @@ class ScenarioRun:
         sc = self.scenario
         return clean({
             'scenario': str(sc.path), 'scene': str(sc.scene), 'backend': self.backend,
-            'realtime': self.realtime,
+            'realtime': self.realtime, 'ros_domain': self.domain,
+            'node_timing': dict(self.node_timing) if self.node_timing else None,
             'controller': self.controller, 'duration': sc.duration,
             'simulated': self.duration, 'control_period': sc.control_period, 'seed': sc.seed,
             'completed': self.ok, 'error': self.error,
             'wall_time': self.wall_time, 'real_time_factor': self.real_time_factor,
             'commands_clamped': self.clamped, 'clutch_switches': len(self.switches),
+            'solver_self_check': self.self_check,
             'units': dict(METRICS),
             'metrics': dict(self.metrics),
             'steps': [dict(s) for s in self.steps],
@@ -174,11 +191,31 @@ class ScenarioRun:
             lines.append(f"| {i} | {s['t']:.3f} | {change} | "
                          + ' | '.join(fmt(s[c]) for c in cols) + ' |')
         lines.append('| run | | | ' + ' | '.join(fmt(self.metrics[c]) for c in cols) + ' |')
+        if self.node_timing:
+            lines += ['', self.format_node_timing()]
         return '\n'.join(lines)
+
+    def format_node_timing(self):
+        """The node's timing against the wall clock (realtime) as a one-row Markdown table."""
+        g = self.node_timing.get
+        cells = [f"{g('sim_time', math.nan):.3f}", f"{g('missed_deadlines', math.nan):.0f}",
+                 f"{g('resyncs', math.nan):.0f}", f"{g('slipped_s', math.nan):.3g}",
+                 ' / '.join(f"{g(f'jitter_{q}_us', math.nan):.4g}" for q in ('p50', 'p99', 'max')),
+                 ' / '.join(f"{g(f'step_time_{q}_us', math.nan):.4g}"
+                            for q in ('p50', 'p99', 'max'))]
+        head = ['node timing at t [s]', 'missed deadlines', 'resyncs', 'slipped [s]',
+                'jitter p50 / p99 / max [µs]', 'step time p50 / p99 / max [µs]']
+        return '\n'.join(['| ' + ' | '.join(head) + ' |', '|' + '---|' * len(head),
+                          '| ' + ' | '.join(cells) + ' |'])
 
     def summary_line(self):
         status = 'completed' if self.ok else f"STOPPED: {self.error}"
-        return (f"{self.scenario.name}: {self.backend_text}, {self.duration:g} s simulated in "
+        missed = self.possible_missed_events
+        suspect = (f", {missed} possibly missed clutch events (the solver's self-check: "
+                   f"{self.self_check['solver']})" if missed else '')
+        where = f" on ROS domain {self.domain}" if self.domain is not None else ''
+        return (f"{self.scenario.name}: {self.backend_text}{where}, {self.duration:g} s "
+                f"simulated in "
                 f"{self.wall_time:.3f} s ({self.real_time_factor:.3g}x real time), "
-                f"{len(self.switches)} clutch switches, {self.clamped} commands clamped; "
-                f"{status}")
+                f"{len(self.switches)} clutch switches{suspect}, {self.clamped} commands "
+                f"clamped; {status}")

@@ -38,7 +38,7 @@ def take_step(method, kind, t, y, h, mode, P, ACT, K, y_new, ytmp, aux, rtol, at
         counters[C_RHS] += 6
         return dopri5_step(kind, t, y, h, mode, P, ACT, K, y_new, ytmp, aux, rtol, atol, err_idx)
     counters[C_RHS] += 4
-    return rk4_step(t, y, h, mode, P, ACT, K, y_new, ytmp, aux)
+    return rk4_step(kind, t, y, h, mode, P, ACT, K, y_new, ytmp, aux)
 
 
 @inline_kernel
@@ -47,7 +47,7 @@ def guard_at(method, theta, t, h, y0, y1, K, mode, P, ACT, ytmp, dytmp, auxtmp, 
     An open massless damped node's twist is its exact relaxation, as the step's end and the
     samples have it (the step holds it still): the slip just after a release is ω4 − v."""
     dense_state(method, theta, h, y0, y1, K, ytmp)
-    if twist_relaxes(method, mode, P):
+    if twist_relaxes(mode, P):
         ytmp[TWIST] = relaxed_twist(y0[TWIST], theta * h, P)
     rhs(t + theta * h, ytmp, mode, P, ACT, dytmp, auxtmp)
     counters[C_RHS] += 1
@@ -67,11 +67,13 @@ def output_state(exact, sigma, t, tau, hs, z0, clock, P, ztmp, with_work):
 
 
 @inline_kernel
-def split_state(exact, sigma, t, h, y0, K, tau, hs, z0, clock, P, ycomb, ztmp, with_work):
+def split_state(method, exact, sigma, t, h, y0, y1, K, tau, hs, z0, clock, P, ycomb, ztmp,
+                with_work):
     """The full state at tau + σ·hs inside a split step: the input subsystem from the main
-    step's dense output, the output subsystem from output_state."""
+    step's dense output (y1: the input step's end, for rk4's Hermite cubic), the output
+    subsystem from output_state."""
     tt = tau + sigma * hs
-    dense_state(DOPRI5, (tt - t) / h, h, y0, y0, K, ycomb)
+    dense_state(method, (tt - t) / h, h, y0, y1, K, ycomb)
     output_state(exact, sigma, t, tau, hs, z0, clock, P, ztmp, with_work)
     for i in range(N_OUTPUT):
         ycomb[OUTPUT_STATES[i]] = ztmp[i]
@@ -79,10 +81,12 @@ def split_state(exact, sigma, t, h, y0, K, tau, hs, z0, clock, P, ycomb, ztmp, w
 
 
 @inline_kernel
-def true_split_slip(exact, sigma, t, h, y0, K, tau, hs, z0, clock, P, ACT, ycomb, ztmp):
+def true_split_slip(method, exact, sigma, t, h, y0, y1, K, tau, hs, z0, clock, P, ACT, ycomb,
+                    ztmp):
     """The slip at tau + σ·hs with the rocker speed from the closed-form linkage at the dense
     crank state (what the reset map sees), not from the rocker speed's own dense polynomial."""
-    tt = split_state(exact, sigma, t, h, y0, K, tau, hs, z0, clock, P, ycomb, ztmp, False)
+    tt = split_state(method, exact, sigma, t, h, y0, y1, K, tau, hs, z0, clock, P, ycomb, ztmp,
+                     False)
     return ycomb[OMEGA3] - rocker_speed(tt, ycomb, P, ACT)
 
 
@@ -91,7 +95,8 @@ def _true_guard(split, exact, method, m, t, h, y0, y1, K, tau, hs, z0, clock, mo
                 dytmp, auxtmp, ztmp, counters):
     """The true guard at θ = m: of the step (the right-hand side) or of the output sub-step."""
     if split:
-        return true_split_slip(exact, m, t, h, y0, K, tau, hs, z0, clock, P, ACT, ytmp, ztmp)
+        return true_split_slip(method, exact, m, t, h, y0, y1, K, tau, hs, z0, clock, P, ACT,
+                               ytmp, ztmp)
     return guard_at(method, m, t, h, y0, y1, K, mode, P, ACT, ytmp, dytmp, auxtmp, counters)
 
 
@@ -147,9 +152,9 @@ def locate_root(split, exact, method, t, h, y0, y1, K, tau, hs, z0, clock, mode,
 
 
 @inline_kernel
-def twist_relaxes(method, mode, P):
+def twist_relaxes(mode, P):
     """An open massless damped node: its twist is solved exactly, not stepped (stiff c/k)."""
-    return (method == DOPRI5 and mode == DISENGAGED and P[P_J3] == 0.0 and P[P_KD] > 0.0
+    return (mode == DISENGAGED and P[P_J3] == 0.0 and P[P_KD] > 0.0
             and P[P_RIGID] == 0.0)
 
 
@@ -169,11 +174,11 @@ def emit_samples(split, exact, method, t, h, y0, y1, K, tau, hs, z0, clock, mode
     i = counters[C_NEXT_SAMPLE]
     while i < grid.shape[0] and grid[i] <= t_limit:
         if split:
-            split_state(exact, (grid[i] - tau) / hs if hs > 0.0 else 1.0, t, h, y0, K, tau, hs, z0,
-                        clock, P, ytmp, ztmp, True)
+            split_state(method, exact, (grid[i] - tau) / hs if hs > 0.0 else 1.0, t, h, y0, y1,
+                        K, tau, hs, z0, clock, P, ytmp, ztmp, True)
         else:
             dense_state(method, (grid[i] - t) / h if h > 0.0 else 1.0, h, y0, y1, K, ytmp)
-            if twist_relaxes(method, mode, P):
+            if twist_relaxes(mode, P):
                 theta = relaxed_twist(y0[TWIST], grid[i] - t, P)
                 ytmp[W_DAMPING] += 0.5 * P[P_C] * (y0[TWIST] ** 2 - theta * theta)
                 ytmp[TWIST] = theta

@@ -13,7 +13,7 @@ Pieces of the hybrid loop (hybrid.py), which applies the reset map at what these
 """
 import math
 
-from ..physics.clutch import TWIST_TOLERANCE, clutch_guard, guard_scale, guard_tolerance
+from ..physics.clutch import clutch_guard, guard_scale, guard_tolerance
 from ..physics.compiled import inline_kernel, kernel
 from ..physics.dynamics import project, rhs
 from ..physics.layout import AUX_SLIP, AUX_SLIP_RATE, P_C, TWIST, W_DAMPING
@@ -29,6 +29,7 @@ from .dense_step import (
 from .steppers import DOPRI5, ERR_FULL, FULL, MASSLESS
 from .witness import (
     N_POLY,
+    SAMPLES,
     first_root,
     guard_polynomial,
     guard_rate,
@@ -36,6 +37,7 @@ from .witness import (
     lowest_point,
     poly_root,
     poly_value,
+    twist_guard_value,
 )
 
 # A root located on the step's dense output is reached by a re-taken step, whose state differs
@@ -81,31 +83,130 @@ def _confirm_root(method, t, h, y, y_new, K, mode, P, ACT, clock, theta, hi, g0,
 
 
 @kernel
-def _twist_crossing(method, t, h, y, y_new, K, mode, P, ACT, clock, g0, g1, G, tol_theta,
-                    ytmp, dytmp, auxtmp, counters):
-    """The twist rule's release inside the step (θ where the guard max(θ, −k·s'_free) falls
-    through zero; G holds the twist's polynomial), or −1."""
-    theta_z = -1.0
-    if G[0] > 0.0:
-        tw1 = poly_value(G, 1.0)
-        if tw1 < 0.0:
-            theta_z = poly_root(G, 0.0, 1.0, G[0], tw1, tol_theta)
-        else:
-            tm, gm = lowest_point(G, -TWIST_TOLERANCE)
-            if gm < -TWIST_TOLERANCE:
-                theta_z = poly_root(G, 0.0, tm, G[0], gm, tol_theta)
-        if theta_z < 0.0:
-            return -1.0
-        gz = guard_at(method, theta_z, t, h, y, y_new, K, mode, P, ACT, ytmp, dytmp, auxtmp,
+def _part_low_point(Cp, end):
+    """θ in (0, end) of the lowest point of the polynomial Cp (the look-outs of witness.SAMPLES
+    and the vertex of the parabola through the lowest), or -1."""
+    step = end / SAMPLES
+    best_x = -1.0
+    best = math.inf
+    for j in range(1, SAMPLES):
+        v = poly_value(Cp, j * step)
+        if v < best:
+            best = v
+            best_x = j * step
+    vl = poly_value(Cp, best_x - step)
+    vr = poly_value(Cp, best_x + step)
+    curvature = vl - 2.0 * best + vr
+    if curvature > 0.0:
+        x = best_x + 0.5 * step * (vl - vr) / curvature
+        if 0.0 < x < end and poly_value(Cp, x) < best:
+            return x
+    return best_x
+
+
+@kernel
+def _parts_cross(H, Q, end):
+    """θ in (0, end) where the polynomials H and Q cross with the larger lowest there (their
+    difference changing sign between look-outs, then bisected), or -1."""
+    step = end / SAMPLES
+    best_x = -1.0
+    best = math.inf
+    a = 0.0
+    da = poly_value(H, 0.0) - poly_value(Q, 0.0)
+    for j in range(1, SAMPLES + 1):
+        b = j * step
+        db = poly_value(H, b) - poly_value(Q, b)
+        if (da < 0.0) != (db < 0.0):
+            lo, hi, dlo = a, b, da
+            for _ in range(40):
+                m = 0.5 * (lo + hi)
+                dm = poly_value(H, m) - poly_value(Q, m)
+                if (dm < 0.0) == (dlo < 0.0):
+                    lo, dlo = m, dm
+                else:
+                    hi = m
+            x = 0.5 * (lo + hi)
+            v = max(poly_value(H, x), poly_value(Q, x))
+            if v < best:
+                best = v
+                best_x = x
+        a, da = b, db
+    return best_x
+
+
+@kernel
+def _twist_crossing(method, t, h, y, y_new, K, mode, P, ACT, clock, g0, g1, gtol, C, G,
+                    tol_theta, ytmp, dytmp, auxtmp, counters):
+    """The twist rule's release inside the step: θ where its guard max(twist, Tc/c) first falls
+    through zero, located on the true guard, or −1. C[1] and G hold the two polynomials
+    (witness.guard_polynomial). Bracketed as the torque rule's guard is: the first look-out
+    point below the band (a release and a catch within one step: the first fall, not the
+    last); before it, the guard's lowest point (the lowest look-out and its parabola's vertex),
+    read on the true guard where it falls below the band or below DIP_CHECK of the ends (the
+    polynomials' error can hide a dip under it). The old test looked at the twist's polynomial
+    alone and at the true guard only at the step's end: a Tc that dipped through zero inside a
+    step with the twist below zero (a 0.2–1.4 ms release) was missed at loose tolerances."""
+    lo = 0.0
+    hi = -1.0
+    best_x = -1.0   # the lowest look-out inside the step, then the vertex of the parabola there
+    best = math.inf
+    step = 1.0 / SAMPLES
+    for j in range(1, SAMPLES + 1):
+        x = j * step
+        v = twist_guard_value(C[1], G, x)
+        if v < -gtol:
+            hi = x
+            break
+        lo = x
+        if v < best and j < SAMPLES:
+            best = v
+            best_x = x
+    if best_x > 0.0:
+        vl = twist_guard_value(C[1], G, best_x - step)
+        vr = twist_guard_value(C[1], G, best_x + step)
+        curvature = vl - 2.0 * best + vr
+        if curvature > 0.0:
+            x = best_x + 0.5 * step * (vl - vr) / curvature
+            if 0.0 < x < 1.0 and twist_guard_value(C[1], G, x) < best:
+                best_x = x
+                best = twist_guard_value(C[1], G, x)
+    # and the larger's own low points, which a dip shorter than the look-outs' spacing hides
+    # from them: either part's lowest point, or where the two cross (the twist falling through
+    # zero while Tc/c rises through it: a 0.24 ms release inside a step at rtol 1e-4)
+    end = hi if hi > 0.0 else 1.0
+    for part in range(3):
+        x = _parts_cross(C[1], G, end) if part == 2 else _part_low_point(
+            C[1] if part == 0 else G, end)
+        if x > 0.0:
+            v = twist_guard_value(C[1], G, x)
+            if v < best:
+                best = v
+                best_x = x
+    if best_x > 0.0 and (best < -gtol or best < DIP_CHECK * min(g0, max(g1, 0.0))):
+        gt = guard_at(method, best_x, t, h, y, y_new, K, mode, P, ACT, ytmp, dytmp, auxtmp,
                       counters)
-        if gz <= 0.0:
-            return theta_z       # the twist reached zero where the clutch can open
-        lo, glo = theta_z, gz    # it opens later, once s'_free ≥ 0: by the step's end?
-    else:
-        lo, glo = 0.0, g0
-    if g1 < 0.0:
+        if gt < -gtol:
+            return locate_root(False, False, method, t, h, y, y_new, K, t, h, y, clock, mode, P,
+                               ACT, 0.0, best_x, g0, gt, -1.0, 0.0, tol_theta, ytmp, dytmp,
+                               auxtmp, ytmp, counters)
+    if hi > 0.0:
+        ghi = g1 if hi == 1.0 else guard_at(method, hi, t, h, y, y_new, K, mode, P, ACT, ytmp,
+                                             dytmp, auxtmp, counters)
+        if ghi < 0.0:
+            # from the last look-out above the band if the true guard is above zero there
+            glo = g0
+            if lo > 0.0:
+                glo = guard_at(method, lo, t, h, y, y_new, K, mode, P, ACT, ytmp, dytmp, auxtmp,
+                               counters)
+                if not glo > 0.0:
+                    lo = 0.0
+                    glo = g0
+            return locate_root(False, False, method, t, h, y, y_new, K, t, h, y, clock, mode, P,
+                               ACT, lo, hi, glo, ghi, -1.0, 0.0, tol_theta, ytmp, dytmp, auxtmp,
+                               ytmp, counters)
+    if g1 < -gtol:
         return locate_root(False, False, method, t, h, y, y_new, K, t, h, y, clock, mode, P, ACT,
-                           lo, 1.0, glo, g1, -1.0, 0.0, tol_theta, ytmp, dytmp, auxtmp, ytmp,
+                           0.0, 1.0, g0, g1, -1.0, 0.0, tol_theta, ytmp, dytmp, auxtmp, ytmp,
                            counters)
     return -1.0
 
@@ -254,8 +355,8 @@ def watch_step(method, kind, err_idx, t, h, clipped, t_end, y, y_new, K, mode, P
                 theta = _confirm_root(method, t, h, y, y_new, K, mode, P, ACT, clock, theta, hi,
                                       g0, ghi, gtol, tol_theta, G, ytmp, dytmp, auxtmp, counters)
         else:
-            theta = _twist_crossing(method, t, h, y, y_new, K, mode, P, ACT, clock, g0, g1, G,
-                                    tol_theta, ytmp, dytmp, auxtmp, counters)
+            theta = _twist_crossing(method, t, h, y, y_new, K, mode, P, ACT, clock, g0, g1, gtol,
+                                    C, G, tol_theta, ytmp, dytmp, auxtmp, counters)
             if theta >= 0.0:
                 fire = CROSSING
     if fire == NO_EVENT and g1 < -gtol and not (armed and g0 > 0.0):

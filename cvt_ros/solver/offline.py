@@ -144,6 +144,7 @@ def summarize(result, duration, statistics=None):
     ``statistics``: the SampleStatistics of a streamed run (default: from ``result.samples``)."""
     stats = statistics or statistics_of(result.samples, tail_start(result.samples[0, 0],
                                                                    duration), result.columns)
+    diagnostics = getattr(result, 'diagnostics', {})
     summary = {
         'duration_s': duration,
         'mean_ratio': stats.mean_ratio,
@@ -159,13 +160,18 @@ def summarize(result, duration, statistics=None):
         'work_motor_J': float(result.energy['work_motor']),
         'steps': result.steps,
         'rejected_steps': result.rejected,
+        # the run's self-check (docs/solver.md): switches made late at a step's end and samples
+        # standing outside their clutch mode; either is a possibly missed event (and a warning)
+        'possible_missed_events': int(diagnostics.get('possible_missed_events', 0)),
+        'stray_samples': int(diagnostics.get('stray_samples', 0)),
+        'solver': diagnostics.get('solver', ''),
         'wall_time_s': result.wall_time,
         'real_time_factor': duration / result.wall_time if result.wall_time > 0 else math.inf,
     }
     if len(result.switches_per_path) > 1:   # an N-path machine: each path's clutch
         summary['switches_per_path'] = list(result.switches_per_path)
         summary['peak_clutch_torque_per_path_Nm'] = list(stats.peak_clutch_torque_per_path)
-    warnings = list(getattr(result, 'diagnostics', {}).get('warnings', ()))
+    warnings = list(diagnostics.get('warnings', ()))
     if math.isnan(summary['mean_ratio']):
         warnings.append('the crank is at rest on average: no ratio ω4/ω1 is defined')
     relative = summary['energy_residual_relative']

@@ -31,6 +31,7 @@ from .simulator import _KIND_NAMES, I_COUNTERS, I_MS, I_SIZE, ClutchSwitch, Simu
 class PathsSimulator(Simulator):
     """N identical crank-rocker paths on one crank, each with its own one-way clutch on J3
     (docs/physics.md §9). ``values`` as the Simulator's; ``paths.count`` sets N."""
+    steps_open_output = True   # the N-path loop integrates the open output with the input
 
     def __init__(self, values=None, events_capacity=4096):
         self.values = params_mod.validate(values or {})

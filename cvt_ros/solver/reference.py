@@ -11,7 +11,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from ..physics import layout as L
-from ..physics.clutch import clutch_engages, clutch_guard, uses_twist_release
+from ..physics.clutch import clutch_engages, clutch_guard
 from ..physics.dynamics import project, rhs
 from .simulator import Simulator
 
@@ -36,13 +36,10 @@ def initial_state(values, start=None):
 
 def next_mode(t, y, mode, P, ACT, dy, aux, scratch):
     """The automaton's reset map at a located root of ``mode``'s guard (physics/clutch.py), as
-    the compiled solver applies it: the new mode, or None when the clutch does not switch (the
-    twist rule keeps a clutch closed that cannot open; a grazing contact does not engage)."""
+    the compiled solver applies it: the new mode, or None when the clutch does not switch (a
+    grazing contact does not engage). A release guard's root always opens the clutch: the twist
+    rule's guard max(θ, Tc/c) has complementarity in it."""
     if mode == L.ENGAGED:
-        if uses_twist_release(P):
-            rhs(t, y, L.DISENGAGED, P, ACT, dy, aux)
-            if aux[L.AUX_SLIP_RATE] < 0.0:
-                return None
         return L.DISENGAGED
     if clutch_engages(t, y, P, ACT, dy, aux, scratch):
         return L.ENGAGED

@@ -26,13 +26,16 @@ from ..physics.output_exact import modal_form
 from . import advance_layout as AL
 from . import hybrid
 from .output import COL, COLUMNS, N_COLUMNS, write_sample
+from .self_check import stray_band, stray_samples
 from .steppers import DOPRI5, RK4
 
 TWO_PI = 2.0 * math.pi
 REBASE_TURNS = 64  # fold whole turns of φ1 and φ4 out of the state past this many (precision)
 # Fixed-step stability: h·λ_max ≤ this (RK4's stability interval is 2.78 on both axes; 0.5 also
-# keeps ≥ 12 steps per period of the fastest shaft mode).
+# keeps ≥ 12 steps per period of the fastest mode it integrates). λ_max counts what the fixed step
+# integrates itself (stepped_rates), not the open output, which runs apart (slip_watch.py).
 RK4_STEP_BY_MODE = 0.5
+RK4_STABILITY = 2.0 * math.sqrt(2.0)   # RK4's stability interval on the imaginary axis
 
 
 class SimulationError(RuntimeError):
@@ -59,7 +62,9 @@ class RunResult:
     steps: int = 0
     rejected: int = 0
     energy: dict = field(default_factory=dict)
-    # rhs_evaluations, possible_missed_events, first_possible_missed_event_s, warnings (texts)
+    # rhs_evaluations, possible_missed_events (late switches: a guard found beyond its band at a
+    # step's end), first_possible_missed_event_s, stray_samples (samples outside their mode:
+    # self_check.py), first_stray_sample_s, solver (method and step, one line), warnings (texts)
     diagnostics: dict = field(default_factory=dict)
     switch_count: int = 0                # releases and engagements (kept or not)
     graze_count: int = 0                 # grazing contacts (the guard touched zero, no switch)
@@ -117,34 +122,52 @@ def settings_vector(values, h_fixed):
     return S
 
 
-def fastest_rate(values):
-    """Largest eigenvalue magnitude λ_max [1/s] an explicit step has to resolve (bound)."""
+def open_output_rate(values):
+    """The open clutch's output modes [1/s]: the J3–J4 ringing (eq. 12) or a massless damped
+    node's relaxation c/k. Solved apart from the steps (exactly when linear, else on their own
+    clock: slip_watch.py; the node's relaxation exactly), so no fixed step has to resolve them."""
+    c = math.inf if values['model.fidelity'] == 'rigid_shaft' else values['shaft.stiffness']
+    kd = values['shaft.damping']
+    J3, J4 = values['inertia.clutch_driven'], values['inertia.output']
+    if not math.isfinite(c):
+        return 0.0
+    if J3 > 0.0:
+        inv = 1.0 / J3 + 1.0 / J4
+        return math.sqrt(c * inv) + kd * inv
+    return c / kd if kd > 0.0 else 0.0
+
+
+def stepped_rates(values):
+    """(rate [1/s], what) of everything a fixed step integrates itself, fastest first: the
+    engaged shaft's twist mode (the clutch's contact), the crank speed, the load's viscous rate,
+    the crank's effective-inertia rate."""
     c = math.inf if values['model.fidelity'] == 'rigid_shaft' else values['shaft.stiffness']
     kd = values['shaft.damping']
     J2, J3, J4 = values['inertia.rocker'], values['inertia.clutch_driven'], values['inertia.output']
     crank_speed = max(abs(values['initial.crank_speed']), values['motor.synchronous_speed'])
-    rates = [crank_speed]
-    if math.isfinite(c):
-        if J3 > 0.0:
-            inv = 1.0 / J3 + 1.0 / J4           # disengaged J3–J4 mode (eq. 12)
-            rates.append(math.sqrt(c * inv) + kd * inv)
-        elif kd > 0.0:
-            rates.append(c / kd)                # massless node: first-order relaxation
-        if J2 + J3 > 0.0:
-            inv = 1.0 / J4 + 1.0 / (J2 + J3)    # engaged twist mode, bounded above
-            rates.append(math.sqrt(c * inv) + kd * inv)
-    rates.append(values['load.viscous'] / J4)
+    rates = [(crank_speed, 'the crank speed')]
+    if math.isfinite(c) and J2 + J3 > 0.0:
+        inv = 1.0 / J4 + 1.0 / (J2 + J3)    # engaged twist mode, bounded above
+        rates.append((math.sqrt(c * inv) + kd * inv, "the engaged clutch's shaft twist mode"))
+    rates.append((values['load.viscous'] / J4, "the load's viscous rate"))
     # the rate of the crank's effective inertia, with what an engaged clutch drives rigidly
     # (the output too behind a rigid shaft): an accuracy bound more than a stability one, so
     # counted in full (h·rate ≤ 0.5: ~0.3 % energy error through a heavy output's engagement
     # near the Grashof bound); at the scene's crank length (a crank commanded towards the
     # bound at run time is not re-counted)
     j_driven = J2 + J3 + (J4 if not math.isfinite(c) else 0.0)
-    rates.append(crank_speed * inertia_rate_factor(
+    rates.append((crank_speed * inertia_rate_factor(
         values['linkage.crank_length'], values['linkage.rocker_length'],
         values['linkage.coupler_length'], values['linkage.pivot_distance'],
-        float(values['linkage.assembly_mode']), values['inertia.motor'], j_driven))
-    return max(rates)
+        float(values['linkage.assembly_mode']), values['inertia.motor'], j_driven),
+        "the crank's effective-inertia rate"))
+    return sorted(rates, reverse=True)
+
+
+def fastest_rate(values):
+    """Largest eigenvalue magnitude λ_max [1/s] of the model (bound): the stepped rates and the
+    open output's."""
+    return max(stepped_rates(values)[0][0], open_output_rate(values))
 
 
 def resolution_warnings(values, exact_output, h_fixed):
@@ -179,6 +202,33 @@ def resolution_warnings(values, exact_output, h_fixed):
             f"or model.fidelity rigid_shaft / averaged, runs in reasonable time"]
 
 
+def fixed_step(values, steps_open_output=False):
+    """rk4's step for these values: (h_stable, h_fixed, note, warning). h_stable = 0.5/λ for the
+    fastest rate the fixed step integrates (stepped_rates; with ``steps_open_output`` the open
+    clutch's output modes too: a core that steps them, the N-path one); h_fixed the step taken
+    (solver.fixed_step, refined to h_stable with solver.refine_step auto); note: one line saying
+    so ('' for dopri5); warning: a step beyond RK4's stability bound kept (refine_step off), or
+    ''."""
+    rate, what = stepped_rates(values)[0]
+    if steps_open_output and open_output_rate(values) > rate:
+        rate, what = open_output_rate(values), "the open clutch's output mode"
+    h_stable = RK4_STEP_BY_MODE / rate
+    asked = values['solver.fixed_step']
+    h_fixed = min(asked, h_stable) if values['solver.refine_step'] == 'auto' else asked
+    note = warning = ''
+    if values['solver.method'] == 'rk4':
+        note = f"rk4, fixed step {h_fixed:.3g} s"
+        if h_fixed < asked:
+            note += (f" (solver.fixed_step {asked:g} s refined: h·λ ≤ {RK4_STEP_BY_MODE:g} for "
+                     f"λ = {rate:.3g} 1/s, {what})")
+        elif asked * rate > RK4_STABILITY:
+            warning = (f"solver.fixed_step {asked:g} s is beyond RK4's stability bound "
+                       f"{RK4_STABILITY / rate:.3g} s (2.83/λ, λ = {rate:.3g} 1/s, {what}) and "
+                       f"solver.refine_step is off: the run may blow up or miss clutch events; "
+                       f"solver.refine_step auto refines it to {h_stable:.3g} s")
+    return h_stable, h_fixed, note, warning
+
+
 class Simulator:
     """The pulse CVT as a hybrid dynamical system with event-located integration.
 
@@ -188,6 +238,7 @@ class Simulator:
     """
     columns = COLUMNS   # of the sample rows (output.py)
     n_paths = 1
+    steps_open_output = False   # the open output runs apart from the fixed step (slip_watch.py)
 
     def __init__(self, values=None, events_capacity=4096):
         self.values = params_mod.validate(values or {})
@@ -249,6 +300,8 @@ class Simulator:
         self.path_switch_counts = [0] * self.n_paths   # switches of each path's clutch
         self.event_count = 0        # switches and grazes
         self.first_late_event = None
+        self.stray_count = 0        # samples of run() outside their clutch mode (self_check.py)
+        self.first_stray = None
         self._configure_steps()
         self._set_rocker_from_linkage()
         self._settle_clutch()
@@ -267,12 +320,12 @@ class Simulator:
         self.P[L.P_LINEAR_OUTPUT] = 1.0 if usable else 0.0
         self.P[L.P_OUTPUT_RATE] = rate
         self.P[L.P_OUTPUT_RING] = ring
-        self.h_stable = RK4_STEP_BY_MODE / fastest_rate(self.values)
-        self.h_fixed = self.values['solver.fixed_step']
-        if self.values['solver.refine_step'] == 'auto':
-            self.h_fixed = min(self.h_fixed, self.h_stable)
+        self.h_stable, self.h_fixed, self.step_note, warning = fixed_step(
+            self.values, self.steps_open_output)
         self.S[:] = settings_vector(self.values, self.h_fixed)
         self.warnings = resolution_warnings(self.values, usable, self.h_fixed)
+        if warning:
+            self.warnings.append(warning)
 
     def _set_rocker_from_linkage(self):
         a, ad, _ = crank_actuator(self.t, self.ACT)
@@ -527,6 +580,8 @@ class Simulator:
             chunk = math.ceil(chunk / self.h_fixed - 1e-9) * self.h_fixed
         k_next = 1   # index of the next sample
         t_next = t0
+        band = stray_band(self.values)
+        strays, first_stray = 0, None
         while self.t < t_stop:
             t_next = min(t_stop, t_next + chunk)
             k_end = min(n_last, math.floor((t_next - t0) / sample_dt + 1e-9))
@@ -549,6 +604,12 @@ class Simulator:
             block[:, COL['phi3']] += off4
             block[:, COL['phi4']] += off4
             k_next += len(block)
+            n_stray, t_stray = stray_samples(block, self.P, band, self.columns)
+            if n_stray:
+                strays += n_stray
+                first_stray = t_stray if first_stray is None else first_stray
+                self.stray_count += n_stray
+                self.first_stray = t_stray if self.first_stray is None else self.first_stray
             if len(block):
                 if keep_samples:
                     kept.append(block)
@@ -571,10 +632,18 @@ class Simulator:
                 f"{late} clutch switch(es) found only after the step that crossed them (first at "
                 f"t = {self.first_late_event:.9g} s): an event may have been missed there; a "
                 "tighter solver.rtol or a smaller solver.max_step locates it")
+        if strays:
+            warnings.append(
+                f"{strays} sample(s) stand outside their clutch mode by more than {band:.2g} of "
+                f"the guard's scale (first at t = {first_stray:.9g} s: an open clutch's slip or "
+                "an engaged clutch's release guard below zero): a clutch event inside a step may "
+                "have been missed; a tighter solver.rtol (dopri5) or solver.fixed_step (rk4) "
+                "shows whether it is real")
         diagnostics = {'rhs_evaluations': int(self.counters[AL.C_RHS]) - rhs0,
                        'possible_missed_events': late,
                        'first_possible_missed_event_s': self.first_late_event if late else None,
-                       'warnings': warnings}
+                       'stray_samples': strays, 'first_stray_sample_s': first_stray,
+                       'solver': self.self_check()['solver'], 'warnings': warnings}
         samples = np.concatenate(kept) if keep_samples else np.empty((0, len(self.columns)))
         switched = self.switch_count - switch0
         per_path = tuple(int(c) - int(c0) for c, c0 in zip(self.path_switch_counts, per_path0,
@@ -582,6 +651,18 @@ class Simulator:
         return RunResult(samples, switches, wall, int(self.counters[AL.C_STEPS]) - steps0,
                          int(self.counters[AL.C_REJECTED]) - rej0, energy, diagnostics,
                          switched, self.event_count - events0 - switched, self.columns, per_path)
+
+    def self_check(self):
+        """The solver's self-check since reset() (docs/solver.md): which method and step,
+        switches made late at a step's end (a guard found beyond its band: an event inside the
+        step that no watch located) and samples of run() outside their clutch mode. For the
+        device's /diagnostics, scenario results and recordings' metadata."""
+        late = int(self.counters[AL.C_LATE])
+        return {'solver': self.step_note or f"dopri5, rtol {self.values['solver.rtol']:g}",
+                'possible_missed_events': late,
+                'first_possible_missed_event_s': self.first_late_event if late else None,
+                'stray_samples': self.stray_count,
+                'first_stray_sample_s': self.first_stray}
 
     def _rebase_angles(self):
         """Fold whole turns out of φ1 and φ4 so their sines keep full precision for hours."""

@@ -101,8 +101,8 @@ def left_band_upwards(exact, t, h, tau, hs, z0, clock, P, Cv, ztmp, g0, d0, g1, 
 
 
 @kernel
-def true_beyond(exact, t, h, y, K, tau, hs, z0, clock, P, ACT, ycomb, ztmp, m, gm, side,
-                 gtol):
+def true_beyond(method, exact, t, h, y, y1, K, tau, hs, z0, clock, P, ACT, ycomb, ztmp, m, gm,
+                side, gtol):
     """(σ, slip) where the true slip (the linkage's rocker speed) stands beyond its band on one
     side (side -1: below -gtol, +1: above gtol) in a look whose polynomial slip does so at
     σ = m, the true slip there being gm; else (-1, gm). The two slips differ by the rocker
@@ -117,7 +117,8 @@ def true_beyond(exact, t, h, y, K, tau, hs, z0, clock, P, ACT, ycomb, ztmp, m, g
     fm = side * gm
     while b - a > 1e-9:
         x = m - 0.381966 * (m - a) if m - a > b - m else m + 0.381966 * (b - m)
-        gx = true_split_slip(exact, x, t, h, y, K, tau, hs, z0, clock, P, ACT, ycomb, ztmp)
+        gx = true_split_slip(method, exact, x, t, h, y, y1, K, tau, hs, z0, clock, P, ACT, ycomb,
+                             ztmp)
         if side * gx > gtol:
             return x, gx
         if side * gx > fm:

@@ -149,8 +149,8 @@ def _fast_real_modes(t, h, LIN, W, gtol):
 
 
 @kernel
-def _true_dip(exact, t, h, y, K, tau, hs, z0, clock, P, ACT, ycomb, ztmp, m, gm, g0, d0, g1, d1,
-              gtol):
+def _true_dip(method, exact, t, h, y, y1, K, tau, hs, z0, clock, P, ACT, ycomb, ztmp, m, gm, g0,
+              d0, g1, d1, gtol):
     """(σ, true slip) where the true slip stands below its band in a look whose polynomial
     slip dips or falls below zero at σ = m (the true slip there gm, not below it), else
     (-1, gm): from m, or, for a fall by the look's end (m = 1), from the polynomial's Hermite
@@ -160,17 +160,18 @@ def _true_dip(exact, t, h, y, K, tau, hs, z0, clock, P, ACT, ycomb, ztmp, m, gm,
         xm, _ = hermite_minimum(g0, d0, g1, d1)
         if not xm > 0.0:
             return -1.0, gm
-        gx = true_split_slip(exact, xm, t, h, y, K, tau, hs, z0, clock, P, ACT, ycomb, ztmp)
+        gx = true_split_slip(method, exact, xm, t, h, y, y1, K, tau, hs, z0, clock, P, ACT, ycomb,
+                             ztmp)
         if gx < -gtol:
             return xm, gx
         m, gm = xm, gx
-    return true_beyond(exact, t, h, y, K, tau, hs, z0, clock, P, ACT, ycomb, ztmp, m, gm, -1.0,
-                       gtol)
+    return true_beyond(method, exact, t, h, y, y1, K, tau, hs, z0, clock, P, ACT, ycomb, ztmp, m,
+                       gm, -1.0, gtol)
 
 
 @kernel
-def split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, armed, g0, h_io, grid,
-                 out, counters, z, z_new, ztmp, ycomb, ytmp, dytmp, auxtmp, Cv, Cz):
+def split_output(method, exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, armed, g0, h_io,
+                 grid, out, counters, z, z_new, ztmp, ycomb, ytmp, dytmp, auxtmp, Cv, Cz):
     """The disengaged output subsystem over the accepted input step [t, t+h], apart from it:
     solved exactly (linear output, physics/output_exact.py) or integrated on its own adaptive
     clock; the slip is watched on sub-intervals (sub-steps, or ≤ ARMED_PHASE_STEP rad of the
@@ -178,9 +179,11 @@ def split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arme
     each checked for a crossing and, by Hermite cubics of the slip and its exact rate under an
     error bound, for a dip.
 
-    The output states of y_new are replaced. On a slip crossing (or a slip found beyond the band,
-    'late'), the input step is re-taken exactly to that time and the state there is left in
-    y_new. Returns (t reached, fire, last slip, armed).
+    The input step was taken by ``method`` (dopri5 or rk4: its dense output gives the rocker
+    speed in the looks; y_new holds its end). The output states of y_new are replaced. On a
+    slip crossing (or a slip found beyond the band, 'late'), the input step is re-taken exactly
+    to that time and the state there is left in y_new. Returns (t reached, fire, last slip,
+    armed).
     """
     Ko, zs, LIN, W, _ = clock
     lag = LAG_BOUND * rtol * (1.0 + abs(y[OMEGA1]))   # at the main step's tolerance
@@ -192,7 +195,7 @@ def split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arme
         z[i] = y[OUTPUT_STATES[i]]
         zs[i] = z[i]
     t1 = t + h
-    dense_coefficients(DOPRI5, h, y, y, K, OMEGA2, Cv)
+    dense_coefficients(method, h, y, y_new, K, OMEGA2, Cv)
     fast_rate = 0.0
     fast_until = t
     h_near = math.inf   # [s] a look's length near the slip's band
@@ -207,8 +210,8 @@ def split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arme
                 # the usual free-running step: no catch possible anywhere in it
                 counters[C_SUBSTEPS] += 1
                 if sample_due(grid, counters, t1):
-                    emit_samples(True, exact, DOPRI5, t, h, y, y, K, t, h, z, clock, mode, P, ACT,
-                                 grid, out, counters, t1, ycomb, ztmp, dytmp, auxtmp)
+                    emit_samples(True, exact, method, t, h, y, y_new, K, t, h, z, clock, mode, P,
+                                 ACT, grid, out, counters, t1, ycomb, ztmp, dytmp, auxtmp)
                 for i in range(N_OUTPUT):
                     y_new[OUTPUT_STATES[i]] = z_new[i]
                 return t1, NO_EVENT, g1, armed
@@ -292,17 +295,18 @@ def split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arme
                 # the cubic misses a small rise early in a long look (a 5 ms look whose true
                 # slip stands at most 0.012 rad/s above the band, 0.3 ms after the release):
                 # the true slip's highest point
-                gm = true_split_slip(exact, 0.5, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb,
-                                     ztmp)
-                lo, _ = true_beyond(exact, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb, ztmp,
-                                    0.5, gm, 1.0, gtol)
+                gm = true_split_slip(method, exact, 0.5, t, h, y, y_new, K, tau, hs, z, clock, P,
+                                     ACT, ycomb, ztmp)
+                lo, _ = true_beyond(method, exact, t, h, y, y_new, K, tau, hs, z, clock, P, ACT,
+                                    ycomb, ztmp, 0.5, gm, 1.0, gtol)
             if lo > 0.0:
                 fire = CROSSING
         elif armed and g0 > 0.0:
             if g1 < 0.0:
                 fire = CROSSING
             elif falls_near_zero and true_split_slip(
-                    exact, 1.0, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb, ztmp) < -gtol:
+                    method, exact, 1.0, t, h, y, y_new, K, tau, hs, z, clock, P, ACT, ycomb,
+                    ztmp) < -gtol:
                 # the polynomial slip falls near zero: its end is read on the linkage too, whose
                 # slip may be below zero already (a lag of 0.09 rad/s on a short coupler at
                 # rtol 1e-4: the catch was taken a sub-step late, 0.08 rad/s past it)
@@ -325,26 +329,26 @@ def split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arme
             # located on the true slip (the linkage's rocker speed, as the reset map sees
             # it): the end values must bracket it there too
             tol_s = max(1e-13, 8.0 * 2.2e-16 * abs(tau)) / hs
-            gt_hi = true_split_slip(exact, hi, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb,
-                                    ztmp)
-            gt_lo = true_split_slip(exact, lo, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb,
-                                    ztmp)
+            gt_hi = true_split_slip(method, exact, hi, t, h, y, y_new, K, tau, hs, z, clock, P,
+                                    ACT, ycomb, ztmp)
+            gt_lo = true_split_slip(method, exact, lo, t, h, y, y_new, K, tau, hs, z, clock, P,
+                                    ACT, ycomb, ztmp)
             if gt_hi >= 0.0 and lo == 0.0:
                 # a dip of the polynomial slip (or its fall through zero by the look's end)
                 # where the true slip is not below zero: is the true slip's own dip nearby?
                 # (rtol 1e-4: the polynomial slip at -0.006 rad/s at the look's end, the true
                 # slip at +0.006 there and down to -0.028 inside it, for 0.5 ms)
-                sm, gm = _true_dip(exact, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb, ztmp,
-                                   hi, gt_hi, g0, hs * (dw3_0 - dv0), g1, hs * (dw3_1 - dv1),
-                                   gtol)
+                sm, gm = _true_dip(method, exact, t, h, y, y_new, K, tau, hs, z, clock, P, ACT,
+                                   ycomb, ztmp, hi, gt_hi, g0, hs * (dw3_0 - dv0), g1,
+                                   hs * (dw3_1 - dv1), gtol)
                 if sm >= 0.0:
                     hi = sm
                     gt_hi = gm
             elif lo > 0.0 and gt_lo <= gtol:
                 # the polynomial slip left the band upwards at lo, the true slip not there:
                 # did it nearby?
-                sm, gm = true_beyond(exact, t, h, y, K, tau, hs, z, clock, P, ACT, ycomb, ztmp,
-                                     lo, gt_lo, 1.0, gtol)
+                sm, gm = true_beyond(method, exact, t, h, y, y_new, K, tau, hs, z, clock, P, ACT,
+                                     ycomb, ztmp, lo, gt_lo, 1.0, gtol)
                 if sm >= 0.0:
                     lo = sm
                     gt_lo = gm
@@ -353,7 +357,7 @@ def split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arme
                 # values and exact rates), with its slope
                 start, start_slope = hermite_root(g0, hs * (dw3_0 - dv0), g1, hs * (dw3_1 - dv1),
                                                   lo, hi)
-                sigma = locate_root(True, exact, DOPRI5, t, h, y, y_new, K, tau, hs, z, clock,
+                sigma = locate_root(True, exact, method, t, h, y, y_new, K, tau, hs, z, clock,
                                     mode, P, ACT, lo, hi, gt_lo, gt_hi, start, start_slope,
                                     tol_s, ycomb, dytmp, auxtmp, ztmp, counters)
             elif gt_hi >= -gtol:
@@ -376,19 +380,20 @@ def split_output(exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, atol, arme
                 dopri5_step(OUTPUT, tau, z, t_ev - tau, mode, P, ACT, Ko, z_new, ztmp, auxtmp,
                             rtol, atol, ERR_OUTPUT)
             if sample_due(grid, counters, t_ev):
-                emit_samples(True, exact, DOPRI5, t, h, y, y, K, tau, t_ev - tau, z, clock, mode, P,
-                             ACT, grid, out, counters, t_ev, ycomb, ztmp, dytmp, auxtmp)
+                emit_samples(True, exact, method, t, h, y, y_new, K, tau, t_ev - tau, z, clock,
+                             mode, P, ACT, grid, out, counters, t_ev, ycomb, ztmp, dytmp, auxtmp)
             if t_ev < t1:
-                take_step(DOPRI5, INPUT, t, y, t_ev - t, mode, P, ACT, K, y_new, ytmp, auxtmp, rtol,
-                          atol, ERR_INPUT, counters)
+                take_step(method, INPUT, t, y, t_ev - t, mode, P, ACT, K, y_new, ytmp, auxtmp,
+                          rtol, atol, ERR_INPUT, counters)
             for i in range(N_OUTPUT):
                 y_new[OUTPUT_STATES[i]] = z_new[i]
             if not exact:
                 h_io[H_OUTPUT] = h_out
             return t_ev, fire, g1, armed
         if sample_due(grid, counters, t1 if last else tau + hs):
-            emit_samples(True, exact, DOPRI5, t, h, y, y, K, tau, hs, z, clock, mode, P, ACT, grid,
-                         out, counters, t1 if last else tau + hs, ycomb, ztmp, dytmp, auxtmp)
+            emit_samples(True, exact, method, t, h, y, y_new, K, tau, hs, z, clock, mode, P, ACT,
+                         grid, out, counters, t1 if last else tau + hs, ycomb, ztmp, dytmp,
+                         auxtmp)
         tau = t1 if last else tau + hs
         for i in range(N_OUTPUT):
             z[i] = z_new[i]

@@ -149,13 +149,15 @@ def rk4_combine(y, h, K, y_new):
 
 
 @kernel
-def rk4_step(t, y, h, mode, P, ACT, K, y_new, ytmp, aux):
-    """One RK4 step of the hybrid model (K[0] = f(t, y) given); writes y_new and
-    K[6] = f(t+h, y_new) for the dense output."""
+def rk4_step(kind, t, y, h, mode, P, ACT, K, y_new, ytmp, aux):
+    """One RK4 step of the hybrid model (K[0] = f(t, y) given, of the same kind); writes y_new
+    and K[6] = f(t+h, y_new) for the dense output. ``kind`` as dopri5_step's: the whole state,
+    or with the open output (INPUT) or a massless node's twist (MASSLESS) held still, solved
+    apart from the step."""
     for s in range(1, 4):
-        rhs(rk4_stage(s, t, y, h, K, ytmp), ytmp, mode, P, ACT, K[s], aux)
+        evaluate(kind, rk4_stage(s, t, y, h, K, ytmp), ytmp, mode, P, ACT, K[s], aux)
     rk4_combine(y, h, K, y_new)
-    rhs(t + h, y_new, mode, P, ACT, K[6], aux)
+    evaluate(kind, t + h, y_new, mode, P, ACT, K[6], aux)
     return 0.0
 
 

@@ -74,16 +74,13 @@ def guard_rate(G, x):
 @kernel
 def guard_polynomial(method, h, y0, y1, K, mode, P, C, G):
     """Coefficients G of the clutch guard over the last step as a polynomial in θ ∈ [0, 1];
-    C: scratch (3, N_POLY). Returns False when the guard is not one (the twist rule: then G
-    holds the twist alone)."""
+    C: scratch (3, N_POLY). Returns False when the guard is not one: the twist rule's
+    max(θ, Tc/c), whose two polynomials are left in C[1] (the twist) and G (Tc/c)."""
     for k in range(N_GUARD):
         G[k] = 0.0
     rigid = P[P_RIGID] > 0.0
     dense_coefficients(method, h, y0, y1, K, OMEGA2, C[0])
     if mode == ENGAGED:
-        if uses_twist_release(P):
-            dense_coefficients(method, h, y0, y1, K, TWIST, G)
-            return False
         if rigid:
             jd = (P[P_J3] + P[P_J4]) / h
             for k in range(N_POLY - 1):
@@ -107,6 +104,10 @@ def guard_polynomial(method, h, y0, y1, K, mode, P, C, G):
             G[k] = c * C[1, k] + kd * (C[0, k] - C[2, k])
             if k < N_POLY - 1:
                 G[k] += j3 * (k + 1) * C[0, k + 1]
+        if uses_twist_release(P):
+            for k in range(N_POLY):
+                G[k] /= c
+            return False
         return True
     if rigid:
         dense_coefficients(method, h, y0, y1, K, OMEGA4, C[1])
@@ -121,6 +122,12 @@ def guard_polynomial(method, h, y0, y1, K, mode, P, C, G):
     for k in range(N_POLY):
         G[k] = C[1, k] - C[0, k]
     return True
+
+
+@inline_kernel
+def twist_guard_value(C1, G, x):
+    """The twist rule's guard max(θ, Tc/c) at θ = x from its two polynomials (guard_polynomial)."""
+    return max(poly_value(C1, x), poly_value(G, x))
 
 
 @kernel
