@@ -507,16 +507,16 @@ def run(options, out):
             'back end\'s (the scenario\'s solver, dopri5 unless it says otherwise): error-'
             'controlled, the offline answer. rk4 is the node\'s solver when it starts in realtime '
             '(a fixed cost per period, for a deadline); the averaged model always steps with rk4.')
-        for method in ('dopri5', 'rk4'):
-            if ('full', method) not in details:
-                continue
-            out(f'\nCost of the pieces of a period (full model, {method}, µs):\n')
-            out('| piece | µs |')
-            out('|---|---|')
-            for name, value in details['full', method].items():
-                text = (f"{value[0]:.2f} steps, {value[1]:.1f} evaluations"
-                        if isinstance(value, tuple) else f"{value * 1e6:.2f}")
-                out(f"| {name} | {text} |")
+        methods = [m for m in ('dopri5', 'rk4') if ('full', m) in details]
+        if methods:
+            out('\nCost of the pieces of a period (full model, µs):\n')
+            out('| piece | ' + ' | '.join(methods) + ' |')
+            out('|---|' + '---|' * len(methods))
+            for name in details['full', methods[0]]:
+                cells = [(f"{v[0]:.2f} steps, {v[1]:.1f} evaluations" if isinstance(v, tuple)
+                          else f"{v * 1e6:.2f}")
+                         for v in (details['full', m][name] for m in methods)]
+                out(f"| {name} | {' | '.join(cells)} |")
         out('')
     if 'lockstep' in cases:
         out('### Lockstep over DDS, controller in another process (target ≥ 3× at 1 ms, '
