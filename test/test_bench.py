@@ -232,7 +232,7 @@ def test_steady_state_and_scaling_rows(report):
     clean = re.search(r'none late: (.*)\.\n', text)
     named = [entry.split()[0] for entry in clean.group(1).split(', ')] if clean else []
     listed = [r[0] for r in sweep[1]]
-    assert set(named) | set(listed) == set(available_scenes())
+    assert set(named) | set(listed) == set(available_scenes(n_paths=1))
     assert all(listed.count(s) == 4 for s in listed) and not set(named) & set(listed)
     assert all(r[3] == 'same' for r in sweep[1])
 
