@@ -16,6 +16,17 @@ are float64 and grow without bound, so θ keeps an absolute precision of about
 2.2e-16·|φ4| rad (2e-12 rad at φ4 = 1e4 rad, i.e. after ~4 minutes at 40 rad/s; 3e-11 rad after an
 hour): far below anything the model resolves.
 
+A machine of N ≥ 2 paths (``paths.count``) publishes one rocker per path: the joints are
+``crank, rocker_1 … rocker_N, clutch_output, output_shaft`` (``joint_names(n)``; for N = 1 they
+stay ``crank, rocker, clutch_output, output_shaft``), rocker k's effort being the torque its
+clutch passes to J3 (their sum is the one-path ``clutch_torque``), and a second JointState,
+``clutch_states`` (N ≥ 2 only), carries each clutch as a joint ``clutch_1 … clutch_N``:
+position = 1.0 engaged / 0.0 overrunning, velocity = ω2,k − ω3 (the rocker relative to the
+driven member: 0 while engaged, < 0 while overrunning) [rad/s], effort = the clutch's torque
+[N·m]; one message per control period, and one at each clutch switch stamped with the switch's
+own time carrying positions only (velocity and effort empty, as JointState allows).
+``clutch_engaged`` stays one Bool: *any* clutch engaged, published when that changes.
+
 Besides the rclpy builders there are byte-level CDR encoders for the recorder's hot path
 (``joint_state_cdr`` & co.: the same CDR as ``rclpy.serialization.serialize_message``, with
 zeroed padding bytes where rmw leaves them uninitialised; about 10x faster) and a decoder of
@@ -25,18 +36,21 @@ JointState CDR bytes (``decode_joint_state_cdr``) that needs no ROS.
 from __future__ import annotations
 
 import math
+import operator
 import struct
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from .solver.output import COL
+from .solver.output import COL, N_COLUMNS, PATH_QUANTITIES
 
 __all__ = [
     'ACTUATOR_JOINT', 'CLOCK', 'CLUTCH_ENGAGED', 'CRANK_LENGTH_CMD', 'DEVICE_JOINTS', 'DIAGNOSTICS',
     'JOINTS', 'JOINT_COMMANDS', 'JOINT_STATES', 'JointStateDecoder', 'JointStateEncoder',
     'LOAD_TORQUE_CMD', 'QOS',
-    'STATE', 'STATE_QOS',
+    'STATE', 'STATE_QOS', 'CLUTCH_STATES', 'SampleLayout', 'clutch_names', 'joint_names',
+    'device_joint_names', 'rocker_order', 'joint_state_arrays_cdr', 'topics_for', 'PATH_TOPICS',
+    'parse_joint_state_cdr',
     'TOPICS', 'TopicSpec', 'JointStateValues', 'command_subscription_qos', 'state_qos',
     'POSITION_COLUMNS', 'VELOCITY_COLUMNS', 'EFFORT_COLUMNS',
     'bool_cdr', 'clock_cdr', 'clock_msg', 'clock_qos', 'clutch_msg', 'clutch_qos',
@@ -58,6 +72,25 @@ JOINTS = ('crank', 'rocker', 'clutch_output', 'output_shaft')
 ACTUATOR_JOINT = 'crank_length'
 #: All joints the node publishes, in order.
 DEVICE_JOINTS = JOINTS + (ACTUATOR_JOINT,)
+ROCKER = 'rocker'
+CLUTCH = 'clutch'
+
+
+def joint_names(n_paths: int = 1, prefix: str = '') -> tuple[str, ...]:
+    """J1..J4 of joint_states for a machine of ``n_paths``: ``JOINTS`` for one path; ``crank,
+    rocker_1 … rocker_N, clutch_output, output_shaft`` for N ≥ 2."""
+    rockers = (ROCKER,) if n_paths == 1 else tuple(f'{ROCKER}_{k}' for k in range(1, n_paths + 1))
+    return tuple(prefix + j for j in (JOINTS[0], *rockers, *JOINTS[2:]))
+
+
+def device_joint_names(n_paths: int = 1, prefix: str = '') -> tuple[str, ...]:
+    """Every joint of the node's joint_states: ``joint_names`` and the actuator."""
+    return joint_names(n_paths, prefix) + (prefix + ACTUATOR_JOINT,)
+
+
+def clutch_names(n_paths: int, prefix: str = '') -> tuple[str, ...]:
+    """The joints of clutch_states: ``clutch_1 … clutch_N``."""
+    return tuple(f'{prefix}{CLUTCH}_{k}' for k in range(1, n_paths + 1))
 #: Sample-row columns behind position, velocity and effort, joint by joint.
 POSITION_COLUMNS = ('phi1', 'phi2', 'phi3', 'phi4')
 VELOCITY_COLUMNS = ('omega1', 'omega2', 'omega3', 'omega4')
@@ -73,6 +106,8 @@ _FIELDS = _POSITION + _VELOCITY + _EFFORT
 JOINT_STATES = 'joint_states'
 CLUTCH_ENGAGED = 'clutch_engaged'
 CLOCK = '/clock'
+#: N ≥ 2 paths: every clutch's state, torque and slip (a JointState; see the module text)
+CLUTCH_STATES = 'clutch_states'
 DIAGNOSTICS = '/diagnostics'
 CRANK_LENGTH_CMD = 'crank_length_cmd'
 LOAD_TORQUE_CMD = 'load_torque_cmd'
@@ -108,6 +143,9 @@ QOS: dict[str, dict[str, Any]] = {
     'load_torque_cmd': _qos('keep_last', 10, 'reliable', 'volatile'),
     # what topic_based_ros2_control's publisher offers (rclcpp::QoS(1)) and more
     'joint_commands': _qos('keep_last', 10, 'reliable', 'volatile'),
+    # as joint_states, but latched (a late subscriber gets the present states at once, as with
+    # clutch_engaged; volatile subscribers — PlotJuggler, `ros2 topic echo` — match it)
+    'clutch_states': _qos('keep_last', 10, 'reliable', 'transient_local'),
 }
 
 
@@ -143,6 +181,16 @@ TOPICS: dict[str, TopicSpec] = {s.key: s for s in (
               'crank length command [m] as the position of joint crank_length '
               '(topic_based_ros2_control)'),
 )}
+#: Topics a machine of N ≥ 2 paths has besides TOPICS.
+PATH_TOPICS: dict[str, TopicSpec] = {'clutch_states': TopicSpec(
+    'clutch_states', CLUTCH_STATES, 'sensor_msgs/msg/JointState', 'out',
+    'N ≥ 2 paths: clutch_1 … clutch_N, position 1/0 engaged, velocity ω2,k − ω3, effort the '
+    'clutch torque; per period and at each switch')}
+
+
+def topics_for(n_paths: int = 1) -> dict[str, TopicSpec]:
+    """The topics of a node simulating ``n_paths`` paths (TOPICS for one)."""
+    return TOPICS if n_paths == 1 else {**TOPICS, **PATH_TOPICS}
 
 
 def resolve_topic(name: str, namespace: str = '/') -> str:
@@ -153,9 +201,9 @@ def resolve_topic(name: str, namespace: str = '/') -> str:
     return f'{ns}/{name}'
 
 
-def resolved_topics(namespace: str = '/') -> dict[str, str]:
+def resolved_topics(namespace: str = '/', n_paths: int = 1) -> dict[str, str]:
     """Key -> fully qualified topic name for a node in ``namespace``."""
-    return {key: resolve_topic(spec.name, namespace) for key, spec in TOPICS.items()}
+    return {key: resolve_topic(spec.name, namespace) for key, spec in topics_for(n_paths).items()}
 
 
 # ---------------------------------------------------------------------------------- QoS
@@ -382,6 +430,93 @@ def joint_state_cdr(row: Sequence[float], stamp: int | None = None,
     return encoder.encode(sec, nanosec, values)
 
 
+def _path_column(quantity: str, k: int, n_paths: int) -> int:
+    """Index of ``{quantity}_{k}`` in a sample row of ``output.path_columns(n_paths)``."""
+    return N_COLUMNS + PATH_QUANTITIES.index(quantity) * n_paths + (k - 1)
+
+
+class SampleLayout:
+    """joint_states (and, N ≥ 2, clutch_states) of a machine of ``n_paths`` paths from its
+    sample rows (``output.path_columns(n_paths)``): the node's and the recorder's encoders.
+
+    joint_states: ``device_joint_names`` (``prefix`` applied); position φ1, φ2 (each rocker),
+    φ3, φ4, a; velocity ω1, ω2 (each), ω3, ω4, ȧ; effort M1, the clutch torque (each path's),
+    Ts, M4, NaN (the actuator's force is not modelled). For N = 1 the bytes are today's.
+    """
+
+    def __init__(self, n_paths: int = 1, prefix: str = '', frame_id: str = ''):
+        self.n_paths = n = int(n_paths)
+        self.names = device_joint_names(n, prefix)
+        if n == 1:
+            rockers = [(COL['phi2'], COL['omega2'], COL['clutch_torque'])]
+        else:
+            rockers = [(_path_column('phi2', k, n), _path_column('omega2', k, n),
+                        _path_column('clutch_torque', k, n)) for k in range(1, n + 1)]
+        a = COL['crank_length']
+        fields = ([COL['phi1']] + [r[0] for r in rockers] + [COL['phi3'], COL['phi4'], a]
+                  + [COL['omega1']] + [r[1] for r in rockers] + [COL['omega3'], COL['omega4'], a]
+                  + [COL['motor_torque']] + [r[2] for r in rockers]
+                  + [COL['shaft_torque'], COL['load_torque'], a])
+        self.fields = fields
+        joints = len(self.names)
+        self.rate_slot, self.force_slot = 2 * joints - 1, 3 * joints - 1
+        self.gather = operator.itemgetter(*fields)
+        self.encoder = JointStateEncoder(self.names, frame_id)
+        self.clutch_names = clutch_names(n, prefix) if n > 1 else ()
+        if n > 1:
+            self._engaged = operator.itemgetter(*[_path_column('engaged', k, n)
+                                                  for k in range(1, n + 1)])
+            self._speeds = operator.itemgetter(*[_path_column('omega2', k, n)
+                                                 for k in range(1, n + 1)])
+            self._torques = operator.itemgetter(*[_path_column('clutch_torque', k, n)
+                                                  for k in range(1, n + 1)])
+            self._omega3 = COL['omega3']
+            self.clutch_encoder = JointStateEncoder(self.clutch_names, frame_id)
+            self._frame_id = frame_id
+
+    def joint_values(self, row: Sequence[float], crank_rate: float) -> list[float]:
+        """position, velocity and effort values of ``row`` (a list or a numpy row)."""
+        values = list(self.gather(row.tolist() if hasattr(row, 'tolist') else row))
+        values[self.rate_slot] = crank_rate
+        values[self.force_slot] = math.nan
+        return values
+
+    def joint_states(self, row: Sequence[float], crank_rate: float, ns: int) -> bytes:
+        """joint_states CDR of ``row`` stamped ``ns``."""
+        return self.encoder.encode(*divmod(ns, 1_000_000_000),
+                                   self.joint_values(row, crank_rate))
+
+    def clutch_states(self, row: Sequence[float], ns: int) -> bytes:
+        """clutch_states CDR of ``row`` (N ≥ 2) stamped ``ns``."""
+        r = row.tolist() if hasattr(row, 'tolist') else row
+        w3 = r[self._omega3]
+        values = [*self._engaged(r), *[w - w3 for w in self._speeds(r)], *self._torques(r)]
+        return self.clutch_encoder.encode(*divmod(ns, 1_000_000_000), values)
+
+    def clutch_switch(self, mask: int, ns: int) -> bytes:
+        """clutch_states CDR of a switch at ``ns``: positions only, 1.0 for each path in the
+        engaged set ``mask`` (bit k − 1 = path k)."""
+        return joint_state_arrays_cdr(
+            ns, self.clutch_names,
+            [1.0 if mask >> k & 1 else 0.0 for k in range(self.n_paths)], (), (), self._frame_id)
+
+
+def joint_state_arrays_cdr(ns: int, names: Sequence[str], position: Sequence[float],
+                           velocity: Sequence[float], effort: Sequence[float],
+                           frame_id: str = '') -> bytes:
+    """CDR bytes of any JointState (arrays of their own lengths, e.g. empty), rclpy's layout."""
+    body = bytearray(_TIME.pack(*divmod(int(ns), 1_000_000_000)))
+    body += _string(frame_id, len(body))
+    body += b'\x00' * _pad(len(body), 4) + struct.pack('<I', len(names))
+    for name in names:
+        body += _string(name, len(body))
+    for values in (position, velocity, effort):
+        body += b'\x00' * _pad(len(body), 4) + struct.pack('<I', len(values))
+        if len(values):
+            body += b'\x00' * _pad(len(body), 8) + struct.pack(f'<{len(values)}d', *values)
+    return _ENCAPSULATION + bytes(body)
+
+
 def clock_cdr(ns: int) -> bytes:
     """CDR bytes of rosgraph_msgs/Clock at ``ns``."""
     return _ENCAPSULATION + _TIME.pack(*divmod(int(ns), 1_000_000_000))
@@ -439,18 +574,38 @@ class JointStateValues:
         return out
 
 
+def _joint_index(names: Sequence[str], joint: str) -> int | None:
+    hits = [i for i, n in enumerate(names) if n == joint]
+    if not hits:
+        hits = [i for i, n in enumerate(names) if n.endswith(joint)]
+    return hits[0] if len(hits) == 1 else None
+
+
 def joint_order(names: Sequence[str]) -> list[int] | None:
     """Index of each of ``JOINTS`` in a message's name list (a name may carry a prefix, e.g.
-    ``line1_crank``); None if a joint is missing or ambiguous."""
+    ``line1_crank``); None if a joint is missing or ambiguous. A machine of N ≥ 2 paths has
+    ``rocker_1`` in the place of ``rocker``: path 1's rocker (``rocker_order`` gives them all)."""
     order = []
     for joint in JOINTS:
-        hits = [i for i, n in enumerate(names) if n == joint]
-        if not hits:
-            hits = [i for i, n in enumerate(names) if n.endswith(joint)]
-        if len(hits) != 1:
+        i = _joint_index(names, joint)
+        if i is None and joint == ROCKER:
+            i = _joint_index(names, f'{ROCKER}_1')
+        if i is None:
             return None
-        order.append(hits[0])
+        order.append(i)
     return order
+
+
+def rocker_order(names: Sequence[str]) -> list[int]:
+    """Index of each rocker in a message's name list: ``rocker_1 … rocker_N`` (N ≥ 2, as many
+    as there are in a row from 1), else ``[rocker]``'s; [] if none."""
+    order = []
+    while (i := _joint_index(names, f'{ROCKER}_{len(order) + 1}')) is not None:
+        order.append(i)
+    if order:
+        return order
+    i = _joint_index(names, ROCKER)
+    return [] if i is None else [i]
 
 
 def _pick(values: Sequence[float], order: Sequence[int]) -> tuple[float, ...]:
@@ -552,6 +707,13 @@ def joint_command_crank_length(data: bytes) -> float | None:
     return value if math.isfinite(value) else None
 
 
+def parse_joint_state_cdr(data: bytes) -> tuple[int, str, list[str], tuple, tuple, tuple]:
+    """Any little-endian CDR JointState: (stamp [ns], frame_id, names, position, velocity,
+    effort), each array as long as the message has it (e.g. clutch_states' switch messages:
+    positions only); ValueError for other bytes."""
+    return _parse_joint_state(data)
+
+
 def _parse_joint_state(data: bytes) -> tuple[int, str, list[str], tuple, tuple, tuple]:
     """Any little-endian CDR JointState: (stamp [ns], frame_id, names, position, velocity,
     effort); ValueError for other bytes."""
@@ -575,7 +737,7 @@ def topic_key(name: str, keys: Mapping[str, str] | None = None) -> str | None:
     ``keys`` maps resolved names to keys when known. None for a foreign topic."""
     if keys and name in keys:
         return keys[name]
-    for key, spec in TOPICS.items():
+    for key, spec in topics_for(2).items():
         if name == spec.name or (not spec.name.startswith('/')
                                  and name.endswith('/' + spec.name)):
             return key

@@ -58,10 +58,14 @@ def scene_dirs():
     return config_dirs('scenes')
 
 
-def available_scenes():
+def available_scenes(n_paths=None):
+    """The shipped scenes' names; ``n_paths``: only those of that many paths (``paths.count``:
+    the one-path scenes are the paper's machine, conveyor_4path and mixer_3path are not)."""
     names = set()
     for d in scene_dirs():
         names.update(p.stem for p in d.glob('*.yaml'))
+    if n_paths is not None:
+        names = {n for n in names if read_scene(n).get('paths.count', 1) == n_paths}
     return sorted(names)
 
 

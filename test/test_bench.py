@@ -1,13 +1,16 @@
 """`cvt-sim bench` end to end on a tiny configuration: the report's structure, its tables, its
 numbers and plots, and that it leaves the other sections of BENCHMARKS.md alone. No timing
 assertions (the numbers are measured, not promised, here)."""
+import csv
 import math
 import re
 
 import pytest
 
 from cvt_ros.bench import main as bench
+from cvt_ros.bench.report import write_report
 from cvt_ros.bench.work_precision import METHODS
+from cvt_ros.scene import available_scenes
 from cvt_ros.solver import cvode
 
 TINY = ['--quick', '--scenes', 'paper', '--duration', '0.2', '--rtols', '1e-5', '1e-7',
@@ -108,48 +111,84 @@ def test_a_target_bench_cannot_use_is_refused_before_any_work(tmp_path, monkeypa
     assert sorted(p.name for p in tmp_path.iterdir()) == ['BENCHMARKS.md']
 
 
-def test_report_states_command_machine_and_versions(report):
+OWN = ('## Speed at steady state', '## Scaling', '## Clutch switches at every tolerance',
+       '## Default settings', '## Work-precision',
+       '## Speed-up at equal error', '## Numerical stability on hard cases',
+       '## Stability limit of fixed-step RK4', '## Long run', '## Known defects')
+
+
+def test_every_section_states_command_revision_machine_and_load(report):
     text, _ = report
     assert text.startswith('# Benchmarks\n')
-    assert 'cvt-sim bench --quick --scenes paper' in text
-    machine = next(line for line in text.splitlines() if line.startswith('Machine:'))
-    for what in ('cores', 'Python 3.', 'numpy', 'scipy', 'numba', 'UTC'):
-        assert what in machine
+    lines = text.splitlines()
+    for title in OWN:
+        at = next(i for i, line in enumerate(lines) if line.startswith(title))
+        line = lines[at + 2]
+        assert line.startswith('`cvt-sim bench --quick --scenes paper'), (title, line)
+        for what in ('cores', 'Python 3.', 'numpy', 'scipy', 'numba', 'UTC', 'load average'):
+            assert what in line, (title, what)
 
 
 def test_report_has_every_section_once_and_keeps_the_others(report):
     text, _ = report
-    for title in ('## Speed at steady state', '## Scaling', '## Default settings',
-                  '## Work-precision', '### Scene `paper`',
-                  '## Speed-up at equal error', '## Numerical stability on hard cases',
-                  '## Stability limit of fixed-step RK4', '## Long run', '## Known defects',
-                  '## ROS node', '## Recording'):
+    for title in OWN + ('## ROS node', '## Recording'):
         assert text.count(title) == 1, title
     assert 'STALE' not in text
-    # the node's and the recorder's sections come after ours, verbatim
+    # the file's title block stays first; the node's and the recorder's sections after ours,
+    # verbatim
+    assert text.index('# Benchmarks') < text.index('## Speed at steady state')
     assert text.index('## Known defects') < text.index('## ROS node') < text.index('## Recording')
     assert FOREIGN[FOREIGN.index('## ROS node'):] in text
 
 
-def test_tables_are_well_formed_and_their_numbers_positive(report):
+def test_a_run_of_some_sections_replaces_those_where_they_stand(tmp_path):
+    """--write with a --sections subset: the file's summary (title block), the sections the run
+    did not make and other benchmarks' sections stay as they are, in their places."""
+    path = tmp_path / 'BENCHMARKS.md'
+    path.write_text('# Benchmarks\n\n| summary | kept |\n\n## Speed at steady state (200 s)\n\n'
+                    'old steady\n\n## ROS node\n\nnode\n\n## Long run (1 h simulated)\n\n'
+                    'old long\n\n## Recording\n\nrec\n')
+    write_report(path, '# Benchmarks\n\nnew title block\n\n## Long run (60 s simulated)\n\n'
+                       'new long\n\n## Known defects\n\nnew defects\n')
+    text = path.read_text()
+    assert 'new title block' not in text and '| summary | kept |' in text
+    assert 'old long' not in text and 'old steady' in text
+    order = ['| summary', '## Speed at steady state (200 s)', '## ROS node',
+             '## Long run (60 s simulated)', 'new long', '## Known defects', '## Recording']
+    assert [text.index(x) for x in order] == sorted(text.index(x) for x in order)
+    write_report(path, '# Benchmarks\n\nx\n\n## Known defects\n\nagain\n', keep_others=False)
+    assert path.read_text() == '# Benchmarks\n\nx\n\n## Known defects\n\nagain\n'
+
+
+def test_every_point_of_every_curve_is_in_the_csv(report):
+    text, tmp = report
+    assert '](plots/work_precision.csv)' in text
+    with open(tmp / 'plots' / 'work_precision.csv') as f:
+        rows = list(csv.DictReader(f))
+    checked = 0
+    for row in rows:
+        if row['status'] != 'ok':
+            continue
+        wall, rtf, err = float(row['wall_s']), float(row['rtf']), float(row['phi4_rel_error'])
+        assert wall > 0.0 and rtf > 0.0 and err > 0.0
+        assert rtf == pytest.approx(0.2 / wall, rel=0.01)
+        checked += 1
+    # every method, both settings (CVODE's only when scikit-sundae is installed)
+    ran = [m for m in METHODS if not m.cvode or cvode.available() is None]
+    assert checked == 2 * len(ran)
+    assert {row['method'] for row in rows} == {m.label for m in ran}
+    for name in ('speed_up.csv', 'hard_cases.csv', 'long_run.csv'):
+        with open(tmp / 'plots' / name) as f:
+            assert len(list(csv.reader(f))) > 2, name
+
+
+def test_tables_are_well_formed(report):
     text, _ = report
     found = tables(text)
     assert len(found) >= 10
     for header, rows in found:
         for row in rows:
             assert len(row) == len(header), (header, row)
-    checked = 0
-    for header, rows in found:
-        if header[:3] != ['setting', 'wall [s]', 'RTF']:
-            continue
-        for row in rows:
-            wall, rtf, err = (number(row[i]) for i in range(1, 4))
-            assert wall > 0.0 and rtf > 0.0 and err > 0.0
-            assert rtf == pytest.approx(0.2 / wall, rel=0.01)
-            checked += 1
-    # every method, both settings (CVODE's only when scikit-sundae is installed)
-    ran = [m for m in METHODS if not m.cvode or cvode.available() is None]
-    assert checked == 2 * len(ran)
 
 
 def test_default_settings_and_speed_up_are_numbers(report):
@@ -157,9 +196,9 @@ def test_default_settings_and_speed_up_are_numbers(report):
     default = next(t for t in tables(text) if t[0][0] == 'settings')
     for row in default[1]:
         assert number(row[1]) > 0.0 and number(row[-1]) > 0.0     # φ4 error, real-time factor
-    speedup = next(t for t in tables(text) if t[0][:2] == ['error level', 'project (RTF)'])
-    assert [r[0] for r in speedup[1]] == ['1e-04', '1e-06', '1e-08']
-    ratios = [c for r in speedup[1] for c in r[2:] if not c.startswith(('n/r', '–'))]
+    speedup = next(t for t in tables(text) if t[0][:3] == ['scene', 'φ4 error', 'project (RTF)'])
+    assert [r[1] for r in speedup[1]] == ['1e-04', '1e-06', '1e-08']
+    ratios = [c for r in speedup[1] for c in r[3:] if not c.startswith(('n/r', '–'))]
     assert ratios and all(number(c) > 0.0 for c in ratios)
 
 
@@ -187,8 +226,14 @@ def test_steady_state_and_scaling_rows(report):
     assert [r[0] for r in loose[1]] == ['paper'] and number(loose[1][0][4]) > 0.0
     times = next(t for t in tables(text) if t[0][0] == 'simulated [s]')
     assert [number(r[0]) for r in times[1]] == [1.0, 2.0]
-    sweep = next(t for t in tables(text) if t[0][:2] == ['scene', 'variant'])
-    assert len(sweep[1]) == 4 * len(set(r[0] for r in sweep[1]))
+    # a scene whose four variants switch alike at every rtol is one entry of a sentence, any
+    # other has a row per variant
+    sweep = next((t for t in tables(text) if t[0][:2] == ['scene', 'variant']), (None, []))
+    clean = re.search(r'none late: (.*)\.\n', text)
+    named = [entry.split()[0] for entry in clean.group(1).split(', ')] if clean else []
+    listed = [r[0] for r in sweep[1]]
+    assert set(named) | set(listed) == set(available_scenes(n_paths=1))
+    assert all(listed.count(s) == 4 for s in listed) and not set(named) & set(listed)
     assert all(r[3] == 'same' for r in sweep[1])
 
 

@@ -71,7 +71,7 @@ def test_a_perf_report_is_summed_per_kernel():
     text = profile.section([(window, counts)], 'cvt-sim bench profile', '0.1 at the start')
     assert text.startswith(profile.TITLE)
     assert '| `cvt_ros.physics.dynamics.rhs` | 52.6 % |' in text   # 2717 of 5164
-    assert '1000 µs per simulated second' in text
+    assert '| µs per simulated second (wall) | 1000 |' in text
 
 
 def test_the_section_replaces_its_old_self_and_keeps_the_others(tmp_path):

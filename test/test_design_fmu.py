@@ -9,6 +9,11 @@ The FMU is built once per test session. The C host (fmi2_host.c, compiled when a
 is here) loads the FMU's library in a process without Python, as fmi_adapter, OMSimulator or
 Simulink do: with what docs/design.md says such an importer needs (libpython preloaded,
 PYTHONHOME and PYTHONPATH) it gives the same numbers.
+
+Foreign importers never imported cvt_ros: fresh processes load the FMU (fmpy without cvt_ros,
+the C host) and must exit cleanly, every one — pythonfmu 0.7's native library released its
+interpreter state twice at exit and glibc aborted in one exit of two or three (fmu_slave.py works
+around it and two more of its reference-counting defects, docs/design.md).
 """
 import os
 import shutil
@@ -16,12 +21,14 @@ import subprocess
 import sys
 import sysconfig
 import zipfile
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from cvt_ros.cli import main
+from cvt_ros.design.fmu_slave import DEFECTIVE_PYTHONFMU
 from cvt_ros.scene import load_scene
 from cvt_ros.solver.fidelity import make_simulator
 from cvt_ros.solver.output import COL
@@ -30,6 +37,52 @@ fmpy = pytest.importorskip('fmpy')
 
 STEP = 1e-3
 STOP = 0.4
+FRESH_PROCESSES = 10      # a 1-in-3 abort at exit passes 10 of 10 with probability 2 %
+
+# a foreign Python importer: fmpy in a process that never imported cvt_ros
+FOREIGN_FMPY = """
+import sys
+import fmpy
+assert 'cvt_ros' not in sys.modules
+result = fmpy.simulate_fmu(sys.argv[1], stop_time=0.01, output_interval=0.001)
+print(repr(float(result['output_shaft.speed'][-1])))
+"""
+
+# the slave module's globals, the class and the log queue keep their reference counts through a
+# run and through an initialization that raises (each reference the FMU's library takes back
+# must have been given)
+FOREIGN_COUNTS = """
+import gc, sys
+import fmpy
+from fmpy.fmi2 import FMU2Slave
+path = sys.argv[1]
+md = fmpy.read_model_description(path)
+unzipped = fmpy.extract(path)
+refs = {v.name: v.valueReference for v in md.modelVariables}
+
+def initialize(inertia):
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipped, instanceName='counts',
+                    modelIdentifier=md.coSimulation.modelIdentifier)
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.setReal([refs['inertia.output']], [inertia])
+    try:
+        fmu.exitInitializationMode()
+        fmu.terminate()
+    except Exception:
+        pass
+    fmu.freeInstance()
+    gc.collect()
+
+initialize(1.0)
+module = sys.modules['cvt_transmission']
+held = len(gc.get_referrers(module.__dict__))
+print('globals', sys.getrefcount(module.__dict__) - 1, held)
+before = sys.getrefcount(module.CvtTransmission)
+initialize(-1.0)
+print('class', before, sys.getrefcount(module.CvtTransmission))
+"""
 
 
 @pytest.fixture(scope='session')
@@ -126,6 +179,37 @@ def test_a_bad_parameter_is_refused_at_initialization_with_its_name(fmu):
     assert any('inertia.output: -1' in m and 'outside' in m for m in messages), messages
 
 
+def _fresh_processes(commands, **kwargs):
+    """Each command run in a fresh process, two at a time (the suite runs on one of two cores)."""
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        return list(pool.map(lambda command: subprocess.run(
+            command, capture_output=True, text=True, timeout=300, **kwargs), commands))
+
+
+def test_fresh_importers_without_cvt_ros_exit_cleanly(fmu):
+    device = _in_process(load_scene('conveyor'))[10, COL['omega4']]
+    # (cvt_ros is importable there as here; only the FMU imports it)
+    runs = _fresh_processes([[sys.executable, '-c', FOREIGN_FMPY, str(fmu)]] * FRESH_PROCESSES)
+    for k, proc in enumerate(runs):
+        assert proc.returncode == 0, (k, proc.returncode, proc.stderr[-3000:])
+        assert float(proc.stdout) == device
+
+
+def test_pythonfmu_gets_back_every_reference_it_takes(fmu):
+    import pythonfmu
+    # another release: check its native library (docs/design.md) before listing it there
+    assert pythonfmu.__version__ in DEFECTIVE_PYTHONFMU
+    proc = subprocess.run([sys.executable, '-c', FOREIGN_COUNTS, str(fmu)], text=True,
+                          capture_output=True, timeout=300)
+    assert proc.returncode == 0, (proc.returncode, proc.stderr[-3000:])
+    counts = {line.split()[0]: [int(x) for x in line.split()[1:]]
+              for line in proc.stdout.splitlines()}
+    held, holders = counts['globals']
+    assert held == holders, counts          # pythonfmu 0.7 alone: one short
+    before, after = counts['class']
+    assert after == before, counts          # pythonfmu 0.7 alone: one short per raising call
+
+
 def test_a_host_without_python_runs_the_fmu(fmu, tmp_path):
     compiler = shutil.which('cc') or shutil.which('gcc')
     libpython = Path(sysconfig.get_config_var('LIBDIR') or '') / (
@@ -139,18 +223,24 @@ def test_a_host_without_python_runs_the_fmu(fmu, tmp_path):
     with zipfile.ZipFile(fmu) as zf:
         zf.extractall(unpacked)
     guid = fmpy.read_model_description(str(fmu)).guid
-    library = next((unpacked / 'binaries' / 'linux64').glob('*.so'))
     site = [p for p in sys.path if p.endswith('site-packages')]
     # (the ROS wheels' start-up hook re-executes the interpreter unless it ran already: it
     # cannot inside a host; this process's environment says it did)
     env = {**os.environ, 'LD_PRELOAD': str(libpython), 'PYTHONHOME': sys.base_prefix,
            '_ROS_WHEELS_BOOTSTRAP_COMPLETE': '1',
            'PYTHONPATH': os.pathsep.join(site + [str(Path(__file__).parent.parent)])}
-    proc = subprocess.run([str(host), str(library), guid, (unpacked / 'resources').as_uri(),
-                           '100'], capture_output=True, text=True, env=env, timeout=300)
-    line = [x for x in proc.stdout.splitlines() if x.startswith('output_shaft.speed')]
-    assert line, (proc.returncode, proc.stdout, proc.stderr[-3000:])
     device = _in_process(load_scene('conveyor'))[100, COL['omega4']]
-    # (Python's finalization at the host's exit may abort in free() — after the results:
-    # docs/design.md notes it; the numbers are what this test holds)
-    assert float(line[0].split(':')[1]) == device
+    # the FMU's paths of different lengths, as different machines give it: whether a corrupted
+    # heap aborts depends on its layout (pythonfmu 0.7 alone: some paths never, most always)
+    commands = []
+    for k in range(FRESH_PROCESSES // 2):
+        where = tmp_path / f'fmu{"_" * 7 * k}'
+        if k:
+            where.symlink_to(unpacked)
+        commands.append([str(host), str(next((where / 'binaries' / 'linux64').glob('*.so'))),
+                         guid, (where / 'resources').as_uri(), '100'])
+    for command, proc in zip(commands, _fresh_processes(commands, env=env), strict=True):
+        line = [x for x in proc.stdout.splitlines() if x.startswith('output_shaft.speed')]
+        assert line and proc.returncode == 0, (command[1], proc.returncode, proc.stdout,
+                                               proc.stderr[-3000:])
+        assert float(line[0].split(':')[1]) == device

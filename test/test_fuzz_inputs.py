@@ -83,6 +83,21 @@ def test_mutated_scene_files(worker, tmp_path_factory, data):
     check(worker, ['run', str(path), '--duration', '0.05', '--sample-dt', '0.01', '--quiet'])
 
 
+@settings(FUZZ, max_examples=max(8, EXAMPLES // 4))
+@given(data=st.data())
+def test_mutated_n_path_scene_files(worker, tmp_path_factory, data):
+    """Issue 33's scenes: paths.count and its neighbours mutated, the run recorded (the
+    N-path recording's writer) and the recording analysed."""
+    content = mutate(data.draw, resolve('conveyor_4path').read_bytes())
+    folder = tmp_path_factory.mktemp('scene')
+    path = folder / 'mutated.yaml'
+    path.write_bytes(bytes(content))
+    outcome = check(worker, ['run', str(path), '--duration', '0.05', '--sample-dt', '0.01',
+                             '--quiet', '--mcap', str(folder / 'run.mcap')])
+    if outcome.code in (0, 1) and (folder / 'run.mcap').exists():
+        check(worker, ['analyze', str(folder / 'run.mcap'), '--cycles', '0'])
+
+
 @pytest.mark.parametrize('argv', [
     RUN + ['--set', 'load.torque=1' + '0' * 400],
     RUN + ['--set', 'inertia.output=5e-324'],

@@ -50,3 +50,47 @@ def test_marker_array_from_a_device_sample():
         node.destroy_node()
     finally:
         ctx.try_shutdown()
+
+
+def test_marker_array_draws_every_path():
+    """N = 4: each path's loop closes at its own crank phase, its disc shows its own clutch."""
+    rclpy = pytest.importorskip('rclpy')
+    from rclpy.context import Context
+    from sensor_msgs.msg import JointState
+
+    from cvt_ros.control.markers import LinkageMarkersNode
+    from cvt_ros.interface import SampleLayout, decode_joint_state_cdr
+    from cvt_ros.scene import load_scene
+    from cvt_ros.solver.fidelity import make_simulator
+    sim = make_simulator(load_scene('conveyor_4path'))
+    sim.advance(0.52)
+    row = sim.sample()
+    layout = SampleLayout(4)
+    values = layout.joint_values(row, 0.0)
+    msg = JointState(name=list(layout.names), position=values[:8], velocity=values[8:16],
+                     effort=values[16:])
+    ctx = Context()
+    rclpy.init(context=ctx, domain_id=0)
+    try:
+        node = LinkageMarkersNode(context=ctx, start_parameter_services=False)
+        node.joint_states_callback(msg)   # (learns the layout: the rockers of 4 paths)
+        out = node.markers(msg)
+        assert sorted(m.id for m in out.markers) == list(range(8 + 4 * 3))
+        by_id = {m.id: m for m in out.markers}
+        a = row[12]
+        for k in range(4):
+            crank, coupler, rocker, disc = ((1, 2, 3, 4) if k == 0 else
+                                            range(8 + 4 * (k - 1), 12 + 4 * (k - 1)))
+            pa, pb = by_id[coupler].points
+            assert math.hypot(pa.x, pa.y) == pytest.approx(a, rel=1e-9)
+            assert math.atan2(pa.y, pa.x) == pytest.approx(
+                math.remainder(row[1] + k * math.pi / 2, 2 * math.pi), abs=1e-9)
+            assert math.dist((pa.x, pa.y), (pb.x, pb.y)) == pytest.approx(D, abs=1e-12)
+            assert by_id[rocker].points[1] == pb
+            color = by_id[disc].color
+            assert (color.g > color.r) == (values[17 + k] > 0), k
+        assert {v > 0 for v in values[17:21]} == {True, False}   # (both states drawn)
+        assert decode_joint_state_cdr(layout.joint_states(row, 0.0, 0))[1] == list(layout.names)
+        node.destroy_node()
+    finally:
+        ctx.try_shutdown()

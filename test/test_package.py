@@ -2,7 +2,8 @@
 
 Every third-party module imported anywhere in cvt_ros/ or launch/ maps to a rosdep key
 (MODULE_KEYS); each key must be an exec_depend of package.xml, and each key rosdistro does not
-define must be defined in the repository's rosdep.yaml (README: how to add it as a source).
+define must be defined in the repository's rosdep.yaml (docs/architecture.md: how to add it as a
+source).
 """
 import ast
 import sys

@@ -28,13 +28,9 @@ from cvt_ros.solver.simulator import Simulator
 RTOLS = (1e-4, 1e-6, 1e-8, 1e-10)
 SPAN = 0.5
 # Where rtol 1e-4 decides a contact the tighter tolerances agree on (counts at rtol 1e-4 …
-# 1e-10 as measured): a 59 µs engagement of one of six paths that the rocker at rtol 1e-4 just
-# misses; the grazing scene's 0.7 µs rattles; the stiff shaft (J3 rings at 31 600 rad/s while
-# every clutch is open, integrated by the N-path core: the one-path core solves that output
-# exactly) — BENCHMARKS.md, "Multi-path transmission", open work.
-LOOSE_ONLY = {('paper', 6): (76, 78), ('grazing', 2): (18, 20), ('stiff_shaft', 2): (360, 348),
-              ('stiff_shaft', 3): (963, 983), ('stiff_shaft', 4): (1621, 1689),
-              ('stiff_shaft', 5): (1612, 1668), ('stiff_shaft', 6): (1580, 1618)}
+# 1e-10 as measured): two near-grazes of the stiff shaft with four and six paths, one extra
+# engagement each at rtol 1e-4 (43 of the 45 scene/N pairs switch alike at every rtol).
+LOOSE_ONLY = {('stiff_shaft', 4): (1691, 1689), ('stiff_shaft', 6): (1620, 1618)}
 
 
 def run(values, duration=SPAN, sample_dt=0.01, rtol=None, **changes):
@@ -119,7 +115,7 @@ def test_a_running_machine_does_not_grow_a_path():
 
 # ------------------------------------------------------------------ N = 1
 @pytest.mark.parametrize('method', ['dopri5', 'rk4'])
-@pytest.mark.parametrize('scene', available_scenes())
+@pytest.mark.parametrize('scene', available_scenes(n_paths=1))
 def test_one_path_is_todays_machine_to_the_bit(scene, method):
     """paths.count 1 runs the one-path core: the same object, samples and switches as the
     scene without the new parameters (checked against c1dbe6f's own code once, by sha256 of
@@ -138,7 +134,7 @@ def test_one_path_is_todays_machine_to_the_bit(scene, method):
     assert today.switches_per_path == (today.switch_count,)
 
 
-@pytest.mark.parametrize('scene', available_scenes())
+@pytest.mark.parametrize('scene', available_scenes(n_paths=1))
 def test_the_n_path_core_at_one_path_agrees_with_the_one_path_core(scene):
     """The independent check: the N-path core (no exact open output, its own watch and reset
     map) on the one-path machine: the same switches, their times within 1e-6 s, φ4 within
@@ -156,15 +152,13 @@ def test_the_n_path_core_at_one_path_agrees_with_the_one_path_core(scene):
 
 # ------------------------------------------------------------------ N ≥ 2
 @pytest.mark.parametrize('n', [2, 3, 4, 5, 6])
-@pytest.mark.parametrize('scene', available_scenes())
+@pytest.mark.parametrize('scene', available_scenes(n_paths=1))
 def test_every_scene_switches_the_same_at_every_tolerance(scene, n):
     values = load_scene(scene, {'paths.count': n})
     counts = [run(values, rtol=rtol)[1].switch_count for rtol in RTOLS]
     if (scene, n) in LOOSE_ONLY:
         assert (counts[0], counts[-1]) == LOOSE_ONLY[scene, n]
         counts = counts[1:]
-        if scene == 'stiff_shaft' and n >= 5:   # rattles at rtol 1e-6 too (BENCHMARKS.md)
-            counts = counts[1:]
     assert len(set(counts)) == 1, counts
 
 

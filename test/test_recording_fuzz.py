@@ -21,8 +21,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from mcap.reader import make_reader
 
-from cvt_ros.recording.recorder import SimulationRecorder
+from cvt_ros.recording.recorder import SimulationRecorder, write_run
 from cvt_ros.scene import load_scene
+from cvt_ros.solver.fidelity import make_simulator
 from cvt_ros.solver.simulator import Simulator
 
 EXAMPLES = int(os.environ.get('CVT_FUZZ_EXAMPLES', '40'))
@@ -161,7 +162,11 @@ def _no_partial_files(folder, expected):
 @FUZZ
 @given(data=st.data())
 def test_damaged_recordings_are_handled(worker, original, tmp_path_factory, data):
-    base, messages = original
+    _damaged_case(worker, *original, tmp_path_factory, data)
+
+
+def _damaged_case(worker, base, messages, tmp_path_factory, data):
+    """analyze (JSON, cycles CSV), export and recover on one mutation of ``base``."""
     bad = data.draw(mutated(base))
     folder = tmp_path_factory.mktemp('case')
     path = folder / 'bad.mcap'
@@ -227,7 +232,37 @@ def test_one_damaged_chunk_leaves_the_rest_analysed(worker, chunked, tmp_path_fa
         outcome.stderr
 
 
+@pytest.fixture(scope='module')
+def four_paths(tmp_path_factory):
+    """0.1 s of conveyor_4path (issue 33: rocker_1 … rocker_4, clutch_states), in 2 KiB
+    chunks: (bytes, its messages as a multiset)."""
+    path = tmp_path_factory.mktemp('fuzz') / 'four.mcap'
+    sim = make_simulator(load_scene('conveyor_4path'))
+    result = sim.run(0.1, 1e-3)
+    write_run(path, sim, result, scene='conveyor_4path')
+    return path.read_bytes(), collections.Counter(_messages(path))
+
+
+@settings(FUZZ, max_examples=max(8, EXAMPLES // 4))
+@given(data=st.data())
+def test_damaged_n_path_recordings_are_handled(worker, four_paths, tmp_path_factory, data):
+    """The per-path input of analysis and export (rockers, clutch_states) damaged as above."""
+    _damaged_case(worker, *four_paths, tmp_path_factory, data)
+
+
+_PATH_HEADER = (b't,phi1,phi2,phi3,phi4,omega1,omega2,omega3,omega4,engaged,clutch_torque,'
+                b'phi2_1,phi2_2,omega2_1,omega2_2,engaged_1,engaged_2,clutch_torque_1,'
+                b'clutch_torque_2\n')
+
+
 @pytest.mark.parametrize('content', [
+    # per-path columns (issue 33) that do not add up: a missing path's columns, NaN states,
+    # states that are not 0/1, a second path without its first
+    _PATH_HEADER + b''.join(f'{i * 1e-3},{i},1,0,0,1,1,1,1,1,5,1,2,1,1,nan,7,inf,-1\n'.encode()
+                            for i in range(20)),
+    _PATH_HEADER.replace(b'engaged_2,', b'') + b'0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0,0\n' * 3,
+    b't,phi1,phi2,phi3,phi4,omega1,omega2,omega3,omega4,phi2_2,omega2_2\n'
+    + b''.join(f'{i * 1e-3},{i},0,0,0,1,1,1,1,0,0\n'.encode() for i in range(20)),
     b'', b'\x89MCAP0\r\n', b'\x89MCAP0\r\n' + b'\x01' + b'\xff' * 8, b'\x00' * 4096,
     b'\x89MCAP0\r\n' + bytes(range(256)) * 64, b't,phi1\n' + b'\xff\xfe' * 100,
     b't,phi1,phi2,phi3,phi4,omega1,omega2,omega3,omega4\n' + b'1,nan,inf,-inf,0,0,0,0,0\n' * 5,

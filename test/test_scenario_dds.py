@@ -51,6 +51,27 @@ def test_dds_lockstep_is_bit_identical_to_offline(name):
         assert got == value or (value != value and got != got), key
 
 
+def test_dds_lockstep_with_four_paths_is_bit_identical_to_offline():
+    """Issue 33: cvt_node simulating the 4-path conveyor, its rockers read from state and each
+    clutch's switches from clutch_states (the node's recording): every column the messages
+    carry — each path's rocker, clutch torque and state included — to the bit."""
+    sc = load_scenario('conveyor_4path_setpoint_steps', {'duration': 2.5})
+    offline = run_scenario(sc, backend='offline')
+    run = run_scenario(sc, backend='dds')
+    assert run.ok, run.error
+    close_to(run, offline, 0.0)
+    per_path = slice(len(COL), None)   # phi2_k, omega2_k, engaged_k, clutch_torque_k
+    assert run.samples.shape == offline.samples.shape
+    assert np.array_equal(run.samples[:, per_path], offline.samples[:, per_path])
+    assert np.array_equal(run.column('engaged'), offline.column('engaged'))
+    assert np.array_equal(run.commands, offline.commands, equal_nan=True)
+    assert [s[1:] for s in run.switches] == [s[1:] for s in offline.switches]
+    assert np.allclose([s[0] for s in run.switches], [s[0] for s in offline.switches],
+                       rtol=0, atol=1e-9)
+    for key, value in offline.metrics.items():
+        assert run.metrics[key] == value or (value != value and run.metrics[key] != value), key
+
+
 def test_external_controller_process(steps):
     sc, offline = steps
     cmd = f"{sys.executable} -m cvt_ros.control.node"

@@ -220,3 +220,24 @@ def test_the_docs_controller_example_runs_as_written(tmp_path, monkeypatch):
     # reference controller (0.63)
     assert run.ok and run.steps[1]['max_deviation'] < 1.0 and run.clamped == 0
     assert run_scenario(sc).steps[1]['max_deviation'] < 1.0
+
+
+def test_a_run_whose_solver_suspects_a_missed_event_exits_1_with_the_reason(tmp_path, capsys):
+    """rk4 kept at 10 ms steps beyond its stability bound (solver.refine_step off) on the grazing
+    scene finds a catch only after the step that crossed it (t = 0.94 s): the run completes and
+    its outputs are written, but the exit code is 1 and the self-check's reason is printed, as
+    `cvt-sim run` does (issue 32: the summary line alone showed the count, exit 0)."""
+    from cvt_ros.cli import main
+    scenario, out = tmp_path / 'coarse.yaml', tmp_path / 'm.json'
+    scenario.write_text(
+        "scene: grazing\n"
+        "overrides: {solver.method: rk4, solver.refine_step: 'off', solver.fixed_step: 0.01}\n"
+        "duration: 1.0\ncontrol_period: 0.01\nsetpoint: {initial: 20.0}\n"
+        "crank_limits: {min: 0.0, max: 0.09, rate: 1.0e-9}\n")
+    code = main(['scenario', 'run', str(scenario), '--quiet', '--json', str(out)])
+    err = capsys.readouterr().err
+    assert code == 1
+    assert "self-check suspects a missed clutch event (rk4, fixed step 0.01 s)" in err
+    assert 'found only after the step that crossed them (first at t = 0.94' in err
+    assert 'solver.fixed_step' in err
+    assert json.loads(out.read_text())['solver_self_check']['possible_missed_events'] == 1

@@ -11,6 +11,7 @@ import numpy as np
 
 from .cycles import CycleTable, cycle_metrics
 from .energy import energy_balance
+from .path_metrics import path_metrics
 from .steady import MIN_CYCLES, TOLERANCE, SteadyState, find_steady_state
 from .steps import StepResponse, step_responses
 from .trace import Trace
@@ -31,6 +32,9 @@ class RunAnalysis:
     steady_metrics: dict[str, float]  # CycleTable.window over the steady window ({} if none)
     energy: dict[str, Any]
     steps: list[StepResponse]
+    #: N ≥ 2 paths: per-path figures (path_metrics) over 'whole_run' and 'steady_state' ({} for
+    #: one path; the steady list empty without a steady state)
+    paths: dict[str, list[dict[str, float]]] | None = None
 
     @property
     def streamed_commands(self) -> dict[str, int]:
@@ -60,7 +64,13 @@ def analyze_trace(trace: Trace, *, tolerance: float = TOLERANCE,
         cycles, boundaries = cycle_metrics(trace)
         steady = find_steady_state(cycles, tolerance=tolerance, min_cycles=min_cycles)
         steady_metrics = cycles.window(steady.first, steady.stop) if steady.found else {}
+        paths = {}
+        if trace.paths is not None:
+            paths = {'whole_run': path_metrics(trace),
+                     'steady_state': path_metrics(trace, steady_metrics['t_start'],
+                                                  steady_metrics['t_end'])
+                     if steady_metrics else []}
         return RunAnalysis(trace, cycles, boundaries, whole_run_metrics(trace), steady,
                            steady_metrics, energy_balance(trace),
                            step_responses(trace, cycles, tolerance=tolerance,
-                                          min_cycles=min_cycles))
+                                          min_cycles=min_cycles), paths)

@@ -19,7 +19,7 @@ import numpy as np
 from .. import interface as I
 from ..physics.linkage import GrashofError, check_crank_length
 from .errors import AnalysisError
-from .trace import Command, RecordingInfo, Trace
+from .trace import Command, PathTrace, RecordingInfo, Trace
 
 #: the set point of a controller-kit recording (``cvt-sim scenario run --mcap``; std_msgs/Float64)
 SETPOINT_TOPIC = '/setpoint'
@@ -41,6 +41,7 @@ class _Layout:
 
     order: list[int]          # index of J1..J4 in the message's arrays
     actuator: int | None      # index of the crank-length joint, if published
+    rockers: list[int]        # index of each rocker (N ≥ 2 paths: rocker_1 … rocker_N)
     offsets: list[int]        # byte offsets of the position / velocity / effort doubles
     count: int                # joints per array
     size: int                 # message length
@@ -88,14 +89,17 @@ def _jointstate_layout(data: bytes) -> _Layout | None:
         return None
     if cur.pos != len(data):
         return None
-    return _Layout(order, _actuator_index(names), offsets, count, len(data))
+    return _Layout(order, _actuator_index(names), I.rocker_order(names), offsets, count,
+                   len(data))
 
 
 def _decode_joint_states(datas: list[bytes]) -> tuple[np.ndarray, np.ndarray, np.ndarray,
                                                        np.ndarray, np.ndarray, np.ndarray,
-                                                       list[str]]:
+                                                       list[str], list[np.ndarray] | None]:
     """Decode many JointState messages: decoded (m,) bool, stamp_ns (m,), position, velocity,
-    effort (m, 4), actual crank length (m,) (NaN: not published), problems.
+    effort (m, 4), actual crank length (m,) (NaN: not published), problems, and for N ≥ 2
+    paths each rocker's position, velocity and effort (m, N) (None for one path; effort J2 is
+    then their sum: what all the clutches pass to J3).
 
     Messages with the layout (and the same names, frame and counts, byte for byte) of the first
     decodable one are decoded in one numpy gather; the others one by one.
@@ -110,6 +114,8 @@ def _decode_joint_states(datas: list[bytes]) -> tuple[np.ndarray, np.ndarray, np
     if layout is None:
         raise AnalysisError('joint_states messages do not carry the joints '
                             f'{", ".join(I.JOINTS)}')
+    n_paths = len(layout.rockers)
+    rockers = [np.full((m, n_paths), np.nan) for _ in range(3)] if n_paths > 1 else None
     lengths = np.fromiter((len(d) for d in datas), dtype=np.int64, count=m)
     same_size = np.flatnonzero(lengths == layout.size)
     fast = np.zeros(m, dtype=bool)
@@ -127,12 +133,22 @@ def _decode_joint_states(datas: list[bytes]) -> tuple[np.ndarray, np.ndarray, np
         for k, off in enumerate(layout.offsets):
             block = buf[:, off:off + 8 * layout.count].copy().view('<f8')
             out[k][rows] = block[:, layout.order]
+            if rockers is not None:
+                rockers[k][rows] = block[:, layout.rockers]
             if k == 0 and layout.actuator is not None:
                 crank[rows] = block[:, layout.actuator]
     bad = 0
     for i in np.flatnonzero(~fast):  # fast: decoded so far
         try:
             values, names = I.decode_joint_state_cdr(datas[i])
+            if rockers is not None:
+                order = I.rocker_order(names)
+                if len(order) != n_paths:
+                    raise ValueError(f'{len(order)} rockers')
+                arrays = I.parse_joint_state_cdr(datas[i])[3:]
+                for k in range(3):
+                    rockers[k][i] = [arrays[k][j] if j < len(arrays[k]) else np.nan
+                                     for j in order]
         except ValueError:
             bad += 1
             continue
@@ -141,7 +157,12 @@ def _decode_joint_states(datas: list[bytes]) -> tuple[np.ndarray, np.ndarray, np
         out[0][i], out[1][i], out[2][i] = values.position, values.velocity, values.effort
     if bad:
         problems.append(f'{bad} joint_states message(s) could not be decoded and were skipped')
-    return fast, stamps, out[0], out[1], out[2], crank, problems
+    if rockers is not None:   # J2's effort: every clutch's torque on J3, summed in path order
+        total = np.zeros(m)
+        for k in range(n_paths):
+            total = total + rockers[2][:, k]
+        out[2][:, 1] = total
+    return fast, stamps, out[0], out[1], out[2], crank, problems, rockers
 
 
 def _finite_samples(stamps: np.ndarray, pos: np.ndarray, vel: np.ndarray, eff: np.ndarray
@@ -161,7 +182,7 @@ def _pick_topics(topics: Mapping[str, tuple[str, int]], namespace: str | None,
     used when it is a plain str → str map naming recorded topics)."""
     if isinstance(recorded, dict) and namespace is None:
         mapped = {k: v for k, v in recorded.items() if isinstance(k, str) and isinstance(v, str)
-                  and k in I.TOPICS and v in topics}
+                  and k in I.topics_for(2) and v in topics}
         if mapped.get('joint_states') and \
                 topics[mapped['joint_states']][0] == 'sensor_msgs/msg/JointState':
             return mapped
@@ -184,7 +205,7 @@ def _pick_topics(topics: Mapping[str, tuple[str, int]], namespace: str | None,
     joint_states = js[0]
     ns = joint_states[:-len(I.JOINT_STATES)] if joint_states.endswith(I.JOINT_STATES) else '/'
     picked = {'joint_states': joint_states}
-    for key, spec in I.TOPICS.items():
+    for key, spec in I.topics_for(2).items():
         if key == 'joint_states':
             continue
         name = I.resolve_topic(spec.name, ns)
@@ -270,7 +291,7 @@ def load_mcap(path: str, *, namespace: str | None = None
                 js_data.append(m.data)
                 js_log.append(m.log_time_ns)
             elif key in ('clutch_engaged', 'crank_length_cmd', 'load_torque_cmd',
-                         'joint_commands'):
+                         'joint_commands', 'clutch_states'):
                 events.append((key, m.log_time_ns, m.publish_time_ns, m.data))
     except RecordingReadError as exc:
         # the summary's scan reported the same damage; keep the reader's wording once
@@ -279,7 +300,7 @@ def load_mcap(path: str, *, namespace: str | None = None
     if not js_data:
         why = '; '.join(info.problems) if info.problems else 'no joint_states messages'
         raise AnalysisError(f'{path}: nothing to analyse ({why})')
-    decoded, stamps, pos, vel, eff, crank, problems = _decode_joint_states(js_data)
+    decoded, stamps, pos, vel, eff, crank, problems, rockers = _decode_joint_states(js_data)
     info.problems.extend(problems)
     good = decoded & _finite_samples(stamps, pos, vel, eff)
     skipped = int(np.count_nonzero(decoded & ~good))
@@ -287,7 +308,8 @@ def load_mcap(path: str, *, namespace: str | None = None
         info.problems.append(f'{skipped} joint_states sample(s) with non-finite values or a '
                              'negative stamp skipped')
     samples = _Samples(stamps[good], np.asarray(js_log, dtype=np.int64)[good], pos[good],
-                       vel[good], eff[good], crank[good])
+                       vel[good], eff[good], crank[good],
+                       None if rockers is None else [r[good] for r in rockers])
     changes = []
     if ours:
         for name, record in bag.metadata_records:   # one record per live change
@@ -321,6 +343,48 @@ def _event_value(key: str, data: bytes) -> float | None:
     return value if math.isfinite(value) else None
 
 
+def _clutch_set(data: bytes, rockers: list[np.ndarray] | None
+                ) -> tuple[float, tuple[float, ...]] | None:
+    """(stamp [s], each clutch's position: 1 engaged) of a clutch_states message; None for
+    bytes that are not one of this machine (N = the recorded rockers)."""
+    if rockers is None:
+        return None
+    try:
+        ns, _, names, position, _, _ = I.parse_joint_state_cdr(data)
+    except ValueError:
+        return None
+    n = rockers[0].shape[1]
+    if len(position) != n or len(names) != n or not all(v in (0.0, 1.0) for v in position):
+        return None
+    return ns * 1e-9, tuple(position)
+
+
+def _path_trace(rockers: list[np.ndarray], t0: float,
+                clutch_sets: list[tuple[float, tuple[float, ...]]], exact: bool) -> PathTrace:
+    """Each path's signals of one run and each clutch's switches: a change of its state from
+    one clutch_states message to the next, at the later one's stamp (a switch message carries
+    the switch's own time; without it, the period's message places it ≤ one period late)."""
+    n = rockers[0].shape[1]
+    ordered = sorted(clutch_sets, key=lambda c: c[0])
+    head = [c for c in ordered if c[0] <= t0 + 1e-12]
+    state = list(head[-1][1]) if head else None
+    rest = ordered[len(head):]
+    if state is None and rest:
+        state = list(rest[0][1])
+    switch_t: list[list[float]] = [[] for _ in range(n)]
+    switch_on: list[list[bool]] = [[] for _ in range(n)]
+    initial = None if state is None else tuple(v == 1.0 for v in state)
+    for ts, values in rest:
+        for k in range(n):
+            if values[k] != state[k]:
+                switch_t[k].append(ts)
+                switch_on[k].append(values[k] == 1.0)
+        state = list(values)
+    return PathTrace(rockers[0], rockers[1], rockers[2],
+                     [np.asarray(v, dtype=float) for v in switch_t],
+                     [np.asarray(v, dtype=bool) for v in switch_on], initial, exact)
+
+
 @dataclass
 class _Samples:
     """Decoded joint_states samples in file order (arrays of one length)."""
@@ -331,10 +395,12 @@ class _Samples:
     vel: np.ndarray
     eff: np.ndarray
     crank: np.ndarray
+    rockers: list[np.ndarray] | None = None   # N ≥ 2: position, velocity, effort (m, N)
 
     def take(self, keep: np.ndarray) -> _Samples:
         return _Samples(self.stamps[keep], self.log[keep], self.pos[keep], self.vel[keep],
-                        self.eff[keep], self.crank[keep])
+                        self.eff[keep], self.crank[keep],
+                        None if self.rockers is None else [r[keep] for r in self.rockers])
 
 
 #: live parameter changes that act as a command does (analysis: a step like the command's)
@@ -409,7 +475,12 @@ def _split_runs(path: str, samples: _Samples, events: list, parameters: dict | N
         stop = int(np.searchsorted(ev_log, next_log, 'left')) if next_log is not None \
             else len(events)
         initial = None
+        clutch_sets: list[tuple[float, tuple[float, ...]]] = []
         for key, _, _, data in reversed(events[:start] if r else []):
+            if key == 'clutch_states' and not clutch_sets:   # the set in force at the start
+                state = _clutch_set(data, samples.rockers)
+                if state is not None:
+                    clutch_sets.append((-math.inf, state[1]))
             if key == 'clutch_engaged':
                 value = _event_value(key, data)
                 initial = None if value is None else bool(value)
@@ -433,6 +504,11 @@ def _split_runs(path: str, samples: _Samples, events: list, parameters: dict | N
                         commands.append(Command(float(np.interp(ns, run_log, t)), key, value))
         refused = 0
         for key, lt, pt, data in events[start:max(start, stop)]:
+            if key == 'clutch_states':   # (stamped: simulation time whoever recorded it)
+                state = _clutch_set(data, samples.rockers)
+                if state is not None:
+                    clutch_sets.append(state)
+                continue
             if key == 'joint_commands':   # topic_based_ros2_control's crank-length command
                 key, value = 'crank_length_cmd', I.joint_command_crank_length(data)
             else:
@@ -475,13 +551,18 @@ def _split_runs(path: str, samples: _Samples, events: list, parameters: dict | N
             notes.append('no clutch_engaged messages: clutch metrics unavailable')
         pos_r = samples.pos[lo:hi]
         crank = samples.crank[lo:hi]
+        paths = None
+        if samples.rockers is not None:
+            paths = _path_trace([r[lo:hi] for r in samples.rockers], t[0], clutch_sets, ours)
+            if paths.initial is None:
+                notes.append('no clutch_states messages: per-path clutch switches unavailable')
         trace = Trace(path, 'mcap', t, pos_r, samples.vel[lo:hi], samples.eff[lo:hi],
                       pos_r[:, 2] - pos_r[:, 3], crank.copy(), switch_t_arr,
                       switch_on_arr, initial, ours, sorted(commands, key=lambda c: c.t),
                       in_force, 'recording' if parameters else '',
                       [(ns * 1e-9, ch) for ns, ch in inside],
                       info.scene, len(traces), notes,
-                      'recorded' if np.any(np.isfinite(crank)) else '')
+                      'recorded' if np.any(np.isfinite(crank)) else '', paths=paths)
         traces.append(trace)
     if not traces:
         raise AnalysisError(f'{path}: fewer than 2 samples in every run')

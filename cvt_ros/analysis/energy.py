@@ -45,7 +45,9 @@ def energy_balance(trace: Trace) -> dict[str, Any]:
     m1, m4 = trace.effort[:, 0], trace.effort[:, 3]
     rigid = not math.isfinite(c)
     w3 = w[:, 3] if rigid else w[:, 2]
-    energy = 0.5 * (J[0] * w[:, 0] ** 2 + J[1] * w[:, 1] ** 2 + J[2] * w3 ** 2
+    # every rocker's J2 (N ≥ 2 paths: each its own, physics.md §9)
+    rockers = trace.paths.omega if trace.paths is not None else w[:, 1:2]
+    energy = 0.5 * (J[0] * w[:, 0] ** 2 + J[1] * np.sum(rockers ** 2, axis=1) + J[2] * w3 ** 2
                     + J[3] * w[:, 3] ** 2)
     if not rigid:
         energy = energy + 0.5 * c * th ** 2

@@ -16,7 +16,7 @@ import numpy as np
 from .. import interface as I
 from .bag import MAX_RUNS, load_mcap
 from .errors import AnalysisError
-from .trace import RecordingInfo, Trace, fill_derived_signals
+from .trace import PathTrace, RecordingInfo, Trace, fill_derived_signals
 
 __all__ = ['load', 'load_csv', 'load_mcap']
 
@@ -133,12 +133,7 @@ def load_csv(path: str) -> tuple[list[Trace], RecordingInfo]:
         if bounds[r + 1] - bounds[r] < 2:
             continue
         tt = t[s]
-        engaged = get('engaged')[s]
-        initial = None if np.isnan(engaged[0]) else bool(engaged[0] > 0.5)
-        on = engaged > 0.5
-        change = np.flatnonzero(on[1:] != on[:-1])
-        sw_t = 0.5 * (tt[change] + tt[change + 1])
-        sw_on = on[change + 1]
+        initial, sw_t, sw_on = _sampled_switches(tt, get('engaged')[s])
         phi = np.column_stack([get(c)[s] for c in I.POSITION_COLUMNS])
         twist = get('twist')[s]
         if np.all(np.isnan(twist)):
@@ -150,12 +145,40 @@ def load_csv(path: str) -> tuple[list[Trace], RecordingInfo]:
                       run_index=len(traces))
         if np.any(np.isfinite(trace.crank_length)):
             trace.crank_length_source = 'csv'
+        trace.paths = _csv_paths(header, get, s, tt)
         if initial is None:
             trace.notes.append('no engaged column: clutch metrics unavailable')
         traces.append(trace)
     if not traces:
         raise AnalysisError(f'{path}: fewer than 2 samples in every run')
     return traces, info
+
+
+def _sampled_switches(t: np.ndarray, engaged: np.ndarray
+                      ) -> tuple[bool | None, np.ndarray, np.ndarray]:
+    """(state at t[0] or None, switch times, states after): a sampled engaged column's
+    changes, each placed half-way between its two samples."""
+    initial = None if np.isnan(engaged[0]) else bool(engaged[0] > 0.5)
+    on = engaged > 0.5
+    change = np.flatnonzero(on[1:] != on[:-1])
+    return initial, 0.5 * (t[change] + t[change + 1]), on[change + 1]
+
+
+def _csv_paths(header: list[str], get, rows: slice, t: np.ndarray) -> PathTrace | None:
+    """N ≥ 2 paths: the CSV's per-path columns (phi2_k, omega2_k, engaged_k, clutch_torque_k,
+    ``cvt-sim run --csv`` of such a machine); None for one path."""
+    n = 0
+    while f'phi2_{n + 1}' in header:
+        n += 1
+    if n < 2:
+        return None
+
+    def block(q: str) -> np.ndarray:
+        return np.column_stack([get(f'{q}_{k}')[rows] for k in range(1, n + 1)])
+    switches = [_sampled_switches(t, get(f'engaged_{k}')[rows]) for k in range(1, n + 1)]
+    initial = None if any(sw[0] is None for sw in switches) else tuple(sw[0] for sw in switches)
+    return PathTrace(block('phi2'), block('omega2'), block('clutch_torque'),
+                     [sw[1] for sw in switches], [sw[2] for sw in switches], initial, False)
 
 
 def _plausible_rows(data: np.ndarray, header: list[str], info: RecordingInfo) -> np.ndarray:

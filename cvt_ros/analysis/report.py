@@ -18,6 +18,7 @@ import numpy as np
 
 from .analyze import RunAnalysis
 from .cycles import CYCLE_FIELDS, UNPHYSICAL_NOTES, physical
+from .path_metrics import PATH_FIELDS
 from .steps import MAX_SHOWN_STEPS, MIN_STEP_CYCLES, SETTLING_BAND, StepResponse
 from .trace import RecordingInfo
 
@@ -115,6 +116,7 @@ def format_run(analysis: RunAnalysis, cycles_shown: int | None = 10) -> str:
     for key, label, template in _SUMMARY_ROWS:
         lines.append(f'  {label:38s} {_cell(key, template, whole, flags):>14s} '
                      f'{_cell(key, template, st, flags) if st else "":>14s}')
+    lines.extend(_path_lines(analysis))
     e = analysis.energy
     if e.get('available'):
         lines.append(f"  energy residual                        {e['residual']:.4e} J = "
@@ -163,6 +165,34 @@ def format_run(analysis: RunAnalysis, cycles_shown: int | None = 10) -> str:
                      f'fewer than {MIN_STEP_CYCLES} crank cycles (a closed loop): not analysed '
                      f'as steps; the time series shows them')
     return '\n'.join(lines)
+
+
+def _path_lines(analysis: RunAnalysis) -> list[str]:
+    """N ≥ 2 paths: one line per path, its clutch's figures over the whole run and the steady
+    state (the machine's own figures — the total clutch torque, "any clutch engaged" — are in
+    the table above)."""
+    paths = analysis.paths
+    if not paths:
+        return []
+    steady = paths.get('steady_state') or []
+    head = ('engaged', 'Tc,max [N·m]', 'Tc,mean', 'K', 'switches')
+    width = 13 * len(head) - 1
+    lines = ["  per path: each clutch (the clutch torque above is their sum, the engaged fraction "
+             "any one's)",
+             f"  {'':6s} {'whole run':^{width}s} |{'steady state':^{width}s}".rstrip(),
+             '  ' + f"{'path':>6s} " + ' '.join(f'{h:>12s}' for h in head) + ' |'
+             + ' '.join(f'{h:>12s}' for h in head)]
+    formats = ('{:.3%}', '{:.3f}', '{:.3f}', '{:.4f}', '{:.0f}')
+
+    def cells(row: dict[str, float] | None) -> str:
+        if row is None:
+            return ' '.join(f'{"":>12s}' for _ in formats)
+        return ' '.join(f'{_fmt(fmt, row[key]):>12s}'
+                        for (key, _), fmt in zip(PATH_FIELDS, formats, strict=True))
+    for i, row in enumerate(paths['whole_run']):
+        lines.append(f"  {row['path']:>6d} {cells(row)} |"
+                     f"{cells(steady[i] if i < len(steady) else None)}")
+    return lines
 
 
 def write_cycles_csv(out: IO[str], analyses: Sequence[RunAnalysis]) -> int:
@@ -229,6 +259,7 @@ def to_json(analyses: Sequence[RunAnalysis], info: RecordingInfo) -> dict[str, A
                        'overshoot': s.overshoot, 'window_end': s.window_end}
                       for s in a.steps],
             'streamed_commands': a.streamed_commands,
+            **({'paths': a.paths} if a.paths else {}),
         })
     return _clean({'path': info.path, 'kind': info.kind, 'source': info.source,
                    'scene': info.scene, 'problems': info.problems, 'runs': runs})

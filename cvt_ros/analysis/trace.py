@@ -7,6 +7,13 @@ from ``joint_states`` (or the CSV rows); clutch switches from ``clutch_engaged``
 times (a CSV has only the sampled ``engaged`` column: a switch is placed half-way between the two
 samples); commands from ``crank_length_cmd`` / ``load_torque_cmd``; scene parameters from the
 file's ``cvt_ros`` metadata record (or ``--scene``). Readers: :mod:`cvt_ros.analysis.inputs`.
+
+A machine of N ≥ 2 paths (issue 33) has its rockers and clutches in :class:`PathTrace`
+(``Trace.paths``): each rocker's angle and speed and each clutch's torque (``rocker_1 …
+rocker_N`` of joint_states, or the CSV's per-path columns), each clutch's switches
+(``clutch_states``). The Trace's own arrays keep the one-path meaning: φ2, ω2 path 1's rocker,
+the clutch torque (effort J2) what all the clutches pass to J3, the switches those of "any
+clutch engaged" (``clutch_engaged``).
 """
 
 from __future__ import annotations
@@ -16,8 +23,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ['Command', 'RecordingInfo', 'Trace', 'crank_length_from_angles',
-           'fill_derived_signals']
+__all__ = ['Command', 'PathTrace', 'RecordingInfo', 'Trace', 'crank_length_from_angles',
+           'fill_derived_signals', 'trace_of_samples']
 
 
 @dataclass(frozen=True)
@@ -27,6 +34,55 @@ class Command:
     t: float
     key: str
     value: float
+
+
+def _states_at(t: np.ndarray, initial: bool | None, switch_t: np.ndarray,
+               switch_on: np.ndarray) -> np.ndarray:
+    t = np.asarray(t, dtype=float)
+    if initial is None:
+        return np.full(t.shape, np.nan)
+    states = np.concatenate([[float(initial)], switch_on.astype(float)])
+    return states[np.searchsorted(switch_t, t, side='right')]
+
+
+def _engaged_time(t0: float, initial: bool | None, switch_t: np.ndarray, switch_on: np.ndarray,
+                  t: np.ndarray) -> np.ndarray:
+    """∫ engaged dτ from t0 to each of ``t`` of the step function the switches make."""
+    t = np.asarray(t, dtype=float)
+    if initial is None:
+        return np.full(t.shape, np.nan)
+    keep = switch_t > t0
+    sw, st = switch_t[keep], switch_on[keep].astype(float)
+    knots = np.concatenate([[t0], sw])
+    states = np.concatenate([[float(initial)], st])
+    cum = np.concatenate([[0.0], np.cumsum(states[:-1] * np.diff(knots))])
+    i = np.clip(np.searchsorted(knots, t, side='right') - 1, 0, len(knots) - 1)
+    return cum[i] + states[i] * (t - knots[i])
+
+
+@dataclass
+class PathTrace:
+    """Each path of an N-path machine over one run: (n, N) arrays, path k in column k − 1, and
+    each clutch's switches (``switch_t[k − 1]``, ``switch_engaged[k − 1]``; ``initial`` the
+    states at t[0], None if unknown; ``exact``: switch times of events, else located between
+    samples)."""
+
+    phi: np.ndarray                 # (n, N) rocker angles φ2,k [rad]
+    omega: np.ndarray               # (n, N) rocker speeds ω2,k [rad/s]
+    torque: np.ndarray              # (n, N) clutch torques [N*m]
+    switch_t: list[np.ndarray]
+    switch_engaged: list[np.ndarray]
+    initial: tuple[bool, ...] | None
+    exact: bool = True
+
+    @property
+    def n_paths(self) -> int:
+        return self.phi.shape[1]
+
+    def engaged_time(self, k: int, t0: float, t: np.ndarray) -> np.ndarray:
+        """∫ engaged_k dτ from t0 to each of ``t`` [s] (path ``k`` from 1)."""
+        return _engaged_time(t0, None if self.initial is None else self.initial[k - 1],
+                             self.switch_t[k - 1], self.switch_engaged[k - 1], t)
 
 
 @dataclass
@@ -62,6 +118,8 @@ class Trace:
     #: the set point a controller followed, (t [s], value [rad/s]) at t0 and each change: a
     #: controller-kit recording's /setpoint (``cvt-sim scenario run --mcap``), else empty
     setpoint: list[tuple[float, float]] = field(default_factory=list)
+    #: N ≥ 2 paths: each rocker and clutch (None for the one-path machine)
+    paths: PathTrace | None = None
 
     @property
     def n(self) -> int:
@@ -70,27 +128,12 @@ class Trace:
     def engaged_at(self, t: np.ndarray) -> np.ndarray:
         """Clutch state (0/1, NaN if unknown) at times ``t``: the state after the last switch
         at or before t."""
-        t = np.asarray(t, dtype=float)
-        if self.initial_engaged is None:
-            return np.full(t.shape, np.nan)
-        states = np.concatenate([[float(self.initial_engaged)],
-                                 self.switch_engaged.astype(float)])
-        return states[np.searchsorted(self.switch_t, t, side='right')]
+        return _states_at(t, self.initial_engaged, self.switch_t, self.switch_engaged)
 
     def engaged_time(self, t: np.ndarray) -> np.ndarray:
         """∫ engaged dτ from t[0] to each of ``t`` [s] (exact for the step function)."""
-        t = np.asarray(t, dtype=float)
-        if self.initial_engaged is None:
-            return np.full(t.shape, np.nan)
-        t0 = self.t[0]
-        sw = self.switch_t
-        keep = sw > t0
-        sw, st = sw[keep], self.switch_engaged[keep].astype(float)
-        knots = np.concatenate([[t0], sw])
-        states = np.concatenate([[float(self.initial_engaged)], st])
-        cum = np.concatenate([[0.0], np.cumsum(states[:-1] * np.diff(knots))])
-        i = np.clip(np.searchsorted(knots, t, side='right') - 1, 0, len(knots) - 1)
-        return cum[i] + states[i] * (t - knots[i])
+        return _engaged_time(self.t[0], self.initial_engaged, self.switch_t,
+                             self.switch_engaged, t)
 
 
 @dataclass
@@ -104,6 +147,49 @@ class RecordingInfo:
     source: str = ''
     scene: str = ''
 
+
+
+def trace_of_samples(samples: np.ndarray, columns: tuple[str, ...], switches: list, *,
+                     source: str, kind: str, parameters: dict[str, Any] | None = None,
+                     scene: str = '') -> Trace:
+    """A Trace of the core's sample rows (``columns``: output.path_columns(N)) and its switches
+    — ClutchSwitch objects (with ``path``), or (t, engaged[, path]) tuples — the true state with
+    exact switch times: offline runs, sweep cases, scenario runs. N ≥ 2: ``Trace.paths`` from the
+    per-path columns; the Trace's own switches are those of "any clutch engaged"."""
+    from ..solver.clutch_sets import path_masks, set_changes, switch_tuples
+    from ..solver.output import COL
+
+    s = samples
+    events = switch_tuples(switches)
+    initial = bool(s[0, COL['engaged']] > 0.5) if len(s) else None
+    n = len(columns) - len(COL) and (len(columns) - len(COL)) // 4
+    paths = None
+    if n:
+        index = {c: i for i, c in enumerate(columns)}
+
+        def block(q: str) -> np.ndarray:
+            return s[:, [index[f'{q}_{k}'] for k in range(1, n + 1)]]
+        engaged0 = block('engaged')[0] if len(s) else np.zeros(n)
+        per_t = [[t for t, _, path in events if path == k] for k in range(1, n + 1)]
+        per_on = [[on for _, on, path in events if path == k] for k in range(1, n + 1)]
+        paths = PathTrace(block('phi2'), block('omega2'), block('clutch_torque'),
+                          [np.asarray(v, dtype=float) for v in per_t],
+                          [np.asarray(v, dtype=bool) for v in per_on],
+                          tuple(bool(e > 0.5) for e in engaged0))
+        changes, _ = set_changes(events, path_masks(engaged0))
+        any_t = [c.t for c in changes if c.any_changed]
+        any_on = [c.engaged for c in changes if c.any_changed]
+    else:
+        any_t, any_on = [t for t, _, _ in events], [on for _, on, _ in events]
+    pick = [COL[c] for c in ('motor_torque', 'clutch_torque', 'shaft_torque', 'load_torque')]
+    return Trace(source=source, kind=kind, t=s[:, COL['t']].copy(),
+                 phi=s[:, [COL['phi1'], COL['phi2'], COL['phi3'], COL['phi4']]],
+                 omega=s[:, [COL['omega1'], COL['omega2'], COL['omega3'], COL['omega4']]],
+                 effort=s[:, pick], twist=s[:, COL['twist']].copy(),
+                 crank_length=s[:, COL['crank_length']].copy(),
+                 switch_t=np.asarray(any_t, dtype=float),
+                 switch_engaged=np.asarray(any_on, dtype=bool), initial_engaged=initial,
+                 switches_exact=True, parameters=parameters, scene=scene, paths=paths)
 
 
 def fill_derived_signals(trace: Trace) -> None:

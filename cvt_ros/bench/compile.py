@@ -21,7 +21,7 @@ from pathlib import Path
 from .report import ROOT, environment, publish, table
 
 TITLE = '## Compile time (first run)'
-TOP = 20   # kernels listed
+TOP = 10   # kernels listed
 
 # the child: compile events → JSON on stdout's last line (self-contained: it also runs against
 # an older checkout's cvt_ros)

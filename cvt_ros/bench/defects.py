@@ -65,6 +65,8 @@ def known_defects(log):
                                 first_timeout=60.0, min_timeout=10.0, t0=2047.0)
     out.append({
         'title': 'rk4 (the real-time mode) hangs once t ≥ 2048 s',
+        'fix': '9ef8be6',
+        'test': 'test_stability.py::test_rk4_runs_on_past_2048_s',
         'holds': problem is not None,
         'found': problem or f'ran to {rows[-1]["t"]:g} s',
         'repro': "sim = Simulator(dict(load_scene('paper'), **{'solver.method': 'rk4'})); "
@@ -82,6 +84,8 @@ def known_defects(log):
     (n_d, _, tq_d, phi_d), (n_t, _, tq_t, phi_t) = default_and_tight(base, 0.3, 1e-6)
     out.append({
         'title': 'a release whose clutch-torque dip fits inside one step is missed',
+        'fix': 'd84ffb0',
+        'test': 'test_stability.py::test_a_release_whose_torque_dip_fits_inside_one_step_is_caught',
         'holds': tq_d < -1e-6 * 500.0,
         'found': f'default rtol: {n_d} switches, min clutch torque while closed {tq_d:.3g} N·m, '
                  f'φ4 off by {relative(phi_d, phi_t):.1e} (rel.); rtol 1e-10: {n_t} switches, '
@@ -98,6 +102,9 @@ def known_defects(log):
     (n_d, s_d, _, phi_d), (n_t, s_t, _, phi_t) = default_and_tight(base, 0.3, 1e-6)
     out.append({
         'title': 'an engagement much shorter than the step is missed at the default rtol',
+        'fix': 'd84ffb0',
+        'test': 'test_stability.py::test_a_short_engagement_inside_one_step_is_caught_at_the_'
+                'default_tolerance',
         'holds': n_d != n_t or s_d < -1e-6,
         'found': f'default rtol: {n_d} switches, min slip while open {s_d:.3g} rad/s, φ4 off by '
                  f'{relative(phi_d, phi_t):.1e} (rel.); rtol 1e-10: {n_t} switches, min slip '
@@ -118,6 +125,9 @@ def known_defects(log):
                                   0.3, 2e-6)
     out.append({
         'title': 'the closed-form open-clutch output misses short re-engagements',
+        'fix': 'd84ffb0',
+        'test': 'test_stability.py::test_the_exact_output_sees_every_short_reengagement_on_the_'
+                'stiff_shaft',
         'holds': n_e != n_i or s_e < -1e-6,
         'found': f'stiff_shaft, 0.3 s, rtol 1e-12: closed form {n_e} switches, min slip '
                  f'{s_e:.3g} rad/s; integrated {n_i} switches, min slip {s_i:.3g} rad/s',
@@ -134,6 +144,8 @@ def known_defects(log):
     (n_d, s_d, _, _), (n_t, s_t, _, _) = default_and_tight(md, 0.3, 1e-5)
     out.append({
         'title': 'a massless clutch node with shaft damping is stiff and noisy',
+        'fix': 'd84ffb0',
+        'test': 'test_stability.py::test_a_massless_damped_node_at_the_default_tolerance',
         'holds': n_d != n_t or s_d < -1e-6,
         'found': f'default rtol: {n_d} switches, min slip {s_d:.3g} rad/s; rtol 1e-10: {n_t} '
                  f'switches, min slip {s_t:.3g} rad/s',
@@ -149,16 +161,61 @@ def known_defects(log):
     return out
 
 
+# Fixed defects found by the property searches (test_stability, test_events) after the ones
+# re-run above; their reproductions are the tests named. (title, fixing commit(s), test)
+FIXED = (
+    ('rk4: a located release leaves the step\'s ω3 error as slip', 'b17c382',
+     'test_stability.py::test_real_time_mode_refines_a_step_beyond_the_stability_limit '
+     '(explicit example)'),
+    ('a catch soon after a release is found late, by impact', '9077a9a, 563fd5f',
+     'test_events.py::test_a_catch_soon_after_a_release_is_located_not_found_late'),
+    ('rk4 near the Grashof bound: the crank\'s energy handed to a heavy output within one step',
+     '42ea4fd, 567766e',
+     'test_stability.py::test_every_mode_stays_physical_over_valid_parameters (explicit '
+     'examples)'),
+    ('a dip of the true slip just after the polynomial slip\'s is taken for the interpolant\'s',
+     'e9689b8', 'test_events.py::test_a_dip_of_the_true_slip_after_the_polynomial_slips_is_found'),
+    ('a clutch torque that falls through zero twice in one step is released at the second fall',
+     'e9689b8',
+     'test_events.py::test_a_guard_that_falls_twice_in_one_step_switches_at_the_first_fall'),
+    ('a short open interval after a release, inside one long look, is found late', 'e9689b8',
+     'test_events.py::test_a_short_open_interval_after_a_release_is_seen_in_a_long_look'),
+    ('how a run was sampled changed its steps', 'e9689b8',
+     'test_events.py::test_how_a_run_is_sampled_does_not_change_it'),
+    ('a catch in the first open step after a massless node\'s release is found late', 'fbbb5bc',
+     'test_events.py::test_a_catch_in_the_first_step_after_a_massless_nodes_release_is_located'),
+    ('a catch that the rocker speed\'s interpolant reaches late is taken past it', '7a10997',
+     'test_events.py::test_a_catch_the_rocker_speeds_interpolant_reaches_late_is_located_on_the_'
+     'linkage'),
+    ('a dip of the true slip inside a look whose polynomial slip ends below zero is taken for '
+     'the interpolant\'s', 'b044dd4',
+     'test_events.py::test_a_dip_of_the_true_slip_where_the_polynomial_slip_ends_below_zero_is_'
+     'found'),
+    ('a dip of the clutch torque that the guard\'s polynomial stays above is missed', '8454d54',
+     'test_events.py::test_a_dip_of_the_clutch_torque_the_guard_polynomial_stays_above_is_found'),
+    ('a release whose re-taken step lands past the guard is placed late', '9fdc842',
+     'test_events.py::test_a_release_whose_retaken_step_lands_past_the_guard_is_settled_back'),
+    ('a catch before a rise and a second fall in one look is lost', '1ce103c',
+     'test_events.py::test_a_catch_before_a_rise_and_a_second_fall_in_one_look_is_found'),
+    ('a catch on a massless node that lands past its guard is placed late', 'a81155f',
+     'test_events.py::test_a_catch_on_a_massless_node_that_lands_past_its_guard_is_settled_'
+     'back'),
+)
+
+
 def section_defects(defects):
+    """One line per defect: what it was, the commit that fixed it, the test that pins it. The
+    first ones' reproductions are re-run here: one that holds again says so, with its figures;
+    how each was found and fixed is in its commit message."""
     L = ['## Known defects', '']
-    L += ['Solver defects found while building this benchmark (the long run) and '
-          'test/test_stability.py (its property search). Each reproduction is re-run by every '
-          '`cvt-sim bench` (this list says whether it still holds) and pinned in '
-          'test/test_stability.py: as a strict-xfail test while it holds (a fix shows up as '
-          'XPASS), as a regression test once fixed.', '']
+    L += ['Solver defects found by this benchmark and the property searches of test_stability.py '
+          'and test_events.py, each pinned by the regression test named (the cause and the fix: '
+          'the commit\'s message). Numbers 1–5 are re-run by every `cvt-sim bench` (their '
+          'reproductions: cvt_ros/bench/defects.py).', '']
     for i, d in enumerate(defects, 1):
-        state = 'reproduces' if d['holds'] else 'FIXED (does not reproduce any more)'
-        cause = 'Cause' if d['holds'] else 'Cause, when found'
-        L += [f"{i}. **{d['title']}** — {state}: {d['found']}. Reproduction: `{d['repro']}`. "
-              f"{cause}: {d['cause']}", '']
-    return L
+        state = (f"**REPRODUCES**: {d['found']}; reproduction `{d['repro']}`" if d['holds']
+                 else f"fixed in {d['fix']} (re-run here: does not reproduce)")
+        L += [f"{i}. {d['title']} — {state}; `{d['test']}`."]
+    for i, (title, commit, test) in enumerate(FIXED, len(defects) + 1):
+        L += [f"{i}. {title} — fixed in {commit}; `{test}`."]
+    return L + ['']

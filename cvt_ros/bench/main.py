@@ -20,25 +20,34 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .defects import known_defects, section_defects
-from .hard_cases import HARD_SCENES, hard_cases, section_hard
-from .long_run import long_run, section_long
+from .hard_cases import HARD_COLUMNS, HARD_SCENES, hard_cases, hard_csv_rows, section_hard
+from .long_run import LONG_COLUMNS, long_csv_rows, long_run, section_long
 from .plots import plot_all
-from .report import OWN_TITLE, environment, write_report
+from .report import OWN_TITLE, environment, stamp, write_report
 from .scaling import (
     QUICK_SPANS,
     SPANS,
     event_sweep,
+    section_events,
     section_scaling,
     stiffness_scaling,
     time_scaling,
 )
 from .scaling import STIFFNESSES as SCALING_STIFFNESSES
-from .speedup import ERROR_LEVELS, default_settings, section_default, section_speedup
+from .speedup import (
+    ERROR_LEVELS,
+    SPEEDUP_COLUMNS,
+    default_settings,
+    section_default,
+    section_speedup,
+    speedup_csv_rows,
+)
 from .stability import STIFFNESSES, section_limits, stability_limits
 from .steady_state import SCENES as STEADY_SCENES
 from .steady_state import STEADY_SPAN, section_steady, steady_state
 from .work_precision import (
     CHECK_METHOD,
+    CSV_COLUMNS,
     DEFAULT_DURATION,
     DURATIONS,
     METHOD_BY_KEY,
@@ -49,10 +58,13 @@ from .work_precision import (
     RTOLS,
     SCENES,
     SCIPY_RTOLS,
+    csv_rows,
     cvode_overhead,
     section_cvode,
-    section_scene,
+    section_plots,
+    section_references,
     work_precision,
+    write_csv,
 )
 
 SECTIONS = ('work', 'steady', 'scaling', 'events', 'hard', 'stability', 'long', 'defects')
@@ -60,74 +72,88 @@ SECTIONS = ('work', 'steady', 'scaling', 'events', 'hard', 'stability', 'long', 
 SUBCOMMANDS = ('node', 'fidelity', 'sweep', 'profile', 'design', 'paths', 'compile')
 
 
-def page(cfg, env, parts, plots, command, wall_total):
+def stamped(lines, line):
+    """A section's lines with its stamp (``report.stamp``) under the heading."""
+    return lines[:2] + [line, ''] + lines[2:] if lines else lines
+
+
+def page(cfg, env, parts, plots, data, command, wall_total):
+    """The report: a title block (kept from the file by ``--write``), then one section per
+    thing measured, each with its stamp; the tables behind the plots go to CSV files
+    (``data``: name → path relative to the report)."""
     L = [OWN_TITLE, '']
-    L += [f'Made by `{command}` in {wall_total / 60:.1f} min (the numbers and plots below; '
-          f'`cvt-sim bench` runs the same module).', '']
-    L += [f"Machine: {env['cpu']}, {env['cores']} cores ({env['platform']}); load average "
-          f"{env['load'][0]:.2f} at the start, {os.getloadavg()[0]:.2f} at the end (other jobs "
-          f"shared the machine). Python {env['python']}, "
+    L += [f'Made by `{command}` in {wall_total / 60:.1f} min. Machine: {env["cpu"]}, '
+          f'{env["cores"]} cores ({env["platform"]}), Python {env["python"]}, '
           + ', '.join(f'{k} {v}' for k, v in env['versions'].items())
           + f". Revision {env['revision']}, {env['date']}.", '']
-    L += ['Method (SciMLBenchmarks work-precision): every method integrates the same scene from '
-          'the same consistent initial state over the same span; **time** is the wall time of '
-          'the integration alone (simulator set-up and kernel compilation excluded), the '
-          '**minimum** of several runs after a warm-up of every kernel (5 runs below 0.3 s, 3 '
-          'below 1 s, 2 below 3 s, 1 above; 2/1 with `--quick`); every solver is '
-          'single-threaded (one core). **Errors** against a reference solution: relative error '
-          'of φ4 and ω4 at the end of the span, and the switch-time error max |Δt| over the '
-          'clutch switches matched in order (nan when the switch count differs from the '
-          'reference\'s; the count is then shown as n/N). Real-time factor (RTF) = simulated '
-          'span / wall time. Speed-up at equal error = (baseline time) / (project time), both '
-          'read off the log-log Pareto front of (time, φ4 error) at the same error level '
-          '("≤"/"≥": one side is already more accurate at its loosest setting, so the ratio is '
-          'a bound; n/r: the sweep did not reach the level).', '']
-    L += ["Reference per scene: the project's dopri5 at rtol 1e-13, atol 1e-15, max_step 1e-3 "
-          "(open-clutch output in closed form, or integrated where the two disagree), checked "
-          "against the other variant, against itself at rtol 1e-12, and against scipy "
-          f"{CHECK_METHOD} (solve_ivp with events, an independent stepper and event locator) at "
-          "rtol 1e-12, atol 1e-14; the agreement is tabulated per scene.", '']
+    loads = parts['loads']
+
+    def mark(lines, *keys):
+        first = loads[keys[0]]
+        return stamped(lines, stamp(command, env, (first[0], loads[keys[-1]][1])))
     results, default = parts['work'], parts['default']
-    hard, limits, long, defects = (parts['hard'], parts['stability'], parts['long'],
-                                   parts['defects'])
     if parts['steady']:
-        L += section_steady(parts['steady'], parts['steady_load'])
-    if parts['scaling'] or parts['events']:
-        times, stiffness = parts['scaling'] or ([], [])
-        L += section_scaling(times, stiffness, parts['events'], cfg)
+        L += mark(section_steady(parts['steady'], parts['steady_load']), 'steady')
+    if parts['scaling']:
+        L += mark(section_scaling(*parts['scaling'], cfg), 'scaling')
+    if parts['events']:
+        L += mark(section_events(parts['events'], cfg), 'events')
     if default:
-        L += section_default(default, results, cfg, command)
-    L += ['## Work-precision', '']
-    L += ['Methods: **project dopri5** (adaptive DP5(4), events on its dense output, the open '
-          'clutch\'s linear output subsystem in closed form), **project dopri5, output '
-          'integrated** (the ablation: that subsystem integrated on its own clock), **project '
-          'rk4 (real-time)** (fixed-step RK4, events located inside the step, the step refined '
-          'below the shaft\'s stability limit: "h a → b" is asked → taken), **paper\'s method** '
-          '(the paper\'s index-reduced DAE, eqs. 9/11/12 with Baumgarte stabilization at 200 1/s, '
-          'classical RK4 at the fixed step, no refinement; its clutch switches are located with '
-          'the project\'s event location, which the paper does not describe), and scipy '
-          '`solve_ivp` RK45, DOP853, Radau, LSODA with terminal events on the same right-hand '
-          'side (cvt_ros/solver/reference.py), and **SUNDIALS CVODE** BDF and Adams (its '
-          'variable-order multistep methods with their own root finding) driven the same way '
-          '(cvt_ros/solver/cvode.py); atol = 1e-2·rtol everywhere. A baseline setting '
-          f'whose run is predicted (from the two looser ones) to take more than {cfg.budget:g} s '
-          'is skipped, with all tighter ones.', '']
-    L += section_cvode(parts['cvode'], cfg)
-    L += [f"Spans: {', '.join(f'{r.name} {r.duration:g} s' for r in results)}"
-          + (' (the stiff shaft shorter: scipy needs ~10 s per simulated second there at '
-             'tight tolerances).' if any(r.name == 'stiff_shaft' for r in results) else '.'), '']
-    for res in results:
-        L += section_scene(res, cfg, plots)
-    L += section_speedup(results, cfg)
-    if hard:
-        L += section_hard(hard, cfg)
-    if limits:
-        L += section_limits(limits, cfg, plots)
-    if long:
-        L += section_long(long, cfg)
-    if defects:
-        L += section_defects(defects)
+        L += mark(section_default(default, results, cfg, command), 'work')
+    if results:
+        W = ['## Work-precision', '']
+        W += ['Every method integrates the same scene from the same consistent initial state '
+              'over the same span; **time** is the wall time of the integration alone (set-up '
+              'and compilation excluded), the minimum of several runs after a warm-up (5 below '
+              '0.3 s, 3 below 1 s, 2 below 3 s, 1 above), one core each. **Errors** against the '
+              'reference: relative error of φ4 and ω4 at the end of the span, and the '
+              'switch-time error max |Δt| over the switches matched in order (nan where the '
+              'count differs). Methods: **project dopri5** (adaptive DP5(4), events on its '
+              'dense output, the open clutch\'s output in closed form), **dopri5, output '
+              'integrated** (the ablation), **project rk4** (the realtime mode: fixed step, '
+              'events located inside the step, the step refined below the stability limit of '
+              'what it integrates), **paper\'s method** (its index-reduced DAE, eqs. 9/11/12, '
+              'Baumgarte at 200 1/s, classical RK4, no refinement, the project\'s event '
+              'location), scipy `solve_ivp` RK45, DOP853, Radau, LSODA with terminal events on '
+              'the same right-hand side (solver/reference.py) and SUNDIALS CVODE BDF and Adams '
+              '(solver/cvode.py); atol = 1e-2·rtol. A baseline setting predicted to take more '
+              f'than {cfg.budget:g} s is skipped, with the tighter ones.', '']
+        W += section_cvode(parts['cvode'], cfg)
+        W += ["Reference per scene: the project's dopri5 at rtol 1e-13, atol 1e-15, max_step "
+              "1e-3, checked against its other output variant, against itself at rtol 1e-12 "
+              f"and against scipy {CHECK_METHOD} at rtol 1e-12, atol 1e-14:", '']
+        W += section_references(results)
+        if 'work' in data:
+            W += [f"Every point of every curve (wall time, real-time factor, errors, steps or "
+                  f"right-hand sides, energy residual): [{data['work']}]({data['work']}).", '']
+        W += section_plots(results, plots)
+        L += mark(W, 'work')
+        L += mark(section_speedup(results, cfg), 'work')
+    if parts['hard']:
+        L += mark(section_hard(parts['hard'], cfg), 'hard')
+    if parts['stability']:
+        L += mark(section_limits(parts['stability'], cfg, plots), 'stability')
+    if parts['long']:
+        L += mark(section_long(parts['long'], cfg), 'long')
+    if parts['defects']:
+        L += mark(section_defects(parts['defects']), 'defects')
     return '\n'.join(L).rstrip() + '\n'
+
+
+def write_tables(parts, cfg, folder):
+    """The CSV files behind the page's summaries; name → path."""
+    out = {}
+    if parts['work']:
+        out['work'] = write_csv(folder / 'work_precision.csv', CSV_COLUMNS,
+                                csv_rows(parts['work']))
+        out['speed_up'] = write_csv(folder / 'speed_up.csv', SPEEDUP_COLUMNS,
+                                    speedup_csv_rows(parts['work'], cfg))
+    if parts['hard']:
+        out['hard'] = write_csv(folder / 'hard_cases.csv', HARD_COLUMNS,
+                                hard_csv_rows(parts['hard']))
+    if parts['long']:
+        out['long'] = write_csv(folder / 'long_run.csv', LONG_COLUMNS, long_csv_rows(parts['long']))
+    return out
 
 
 @dataclass
@@ -308,31 +334,42 @@ def main(argv=None):
     t0 = time.perf_counter()
     parts = dict.fromkeys(SECTIONS + ('default', 'steady_load', 'cvode'))
     parts['work'] = []
-    if 'work' in a.sections:
-        parts['work'] = work_precision(cfg, log)
-        parts['cvode'] = cvode_overhead(cfg, log)
-        parts['default'] = default_settings(cfg, parts['work'], log)
-    if 'steady' in a.sections:
+    parts['loads'] = loads = {}
+
+    def measured(key, fn):
         load0 = os.getloadavg()[0]
-        parts['steady'] = steady_state(cfg, log)
-        parts['steady_load'] = f"{load0:.2f} at its start, {os.getloadavg()[0]:.2f} at its end"
+        value = fn()
+        loads[key] = (load0, os.getloadavg()[0])
+        return value
+    if 'work' in a.sections:
+        def work():
+            parts['cvode'] = cvode_overhead(cfg, log)
+            results = work_precision(cfg, log)
+            parts['default'] = default_settings(cfg, results, log)
+            return results
+        parts['work'] = measured('work', work)
+    if 'steady' in a.sections:
+        parts['steady'] = measured('steady', lambda: steady_state(cfg, log))
+        parts['steady_load'] = (f"{loads['steady'][0]:.2f} at its start, "
+                                f"{loads['steady'][1]:.2f} at its end")
     if 'scaling' in a.sections:
-        parts['scaling'] = (time_scaling(cfg, log), stiffness_scaling(cfg, log))
-    if 'events' in a.sections:
-        parts['events'] = event_sweep(cfg, log)
-    if 'hard' in a.sections:
-        parts['hard'] = hard_cases(cfg, log)
-    if 'stability' in a.sections:
-        parts['stability'] = stability_limits(cfg, log)
-    if 'long' in a.sections:
-        parts['long'] = long_run(cfg, log)
+        parts['scaling'] = measured('scaling', lambda: (time_scaling(cfg, log),
+                                                        stiffness_scaling(cfg, log)))
+    for key, fn in (('events', event_sweep), ('hard', hard_cases),
+                    ('stability', stability_limits), ('long', long_run)):
+        if key in a.sections:
+            parts[key] = measured(key, lambda fn=fn: fn(cfg, log))
     if 'defects' in a.sections:
-        parts['defects'] = known_defects(log)
+        parts['defects'] = measured('defects', lambda: known_defects(log))
     plots = plot_all(parts['work'], parts['stability'], parts['default'], plot_dir, cfg)
-    rel = {k: os.path.relpath(v, out.resolve().parent) for k, v in plots.items()}
+    data_dir = plot_dir.parent / 'bench' if update and not a.plots else plot_dir
+    tables = write_tables(parts, cfg, data_dir)
+    here = out.resolve().parent
+    rel = {k: os.path.relpath(v, here) for k, v in plots.items()}
+    data = {k: os.path.relpath(v, here) for k, v in tables.items()}
     command = 'cvt-sim bench' + (' ' + ' '.join(argv) if argv else '')
-    text = page(cfg, env, parts, rel, command, time.perf_counter() - t0)
+    text = page(cfg, env, parts, rel, data, command, time.perf_counter() - t0)
     write_report(out, text, keep_others=update)
-    log(f"wrote {out} and {len(plots)} plots in {plot_dir} "
+    log(f"wrote {out}, {len(plots)} plots in {plot_dir} and {len(tables)} tables in {data_dir} "
         f"({(time.perf_counter() - t0) / 60:.1f} min)")
     return 0

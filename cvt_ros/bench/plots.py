@@ -78,7 +78,7 @@ def plot_all(results, limits, default, outdir, cfg):
         rows = [r for r in limits if r['formulation'] == cfg.stability_formulations[0]]
         c = np.array([r['c'] for r in rows])
         ax.loglog(c, [r['theory'] for r in rows], 'k:', lw=1.5,
-                  label='theory 2√2 / √(c·(1/J3 + 1/J4))')
+                  label='theory 2√2 / λ (the bound on the engaged twist mode)')
         ax.loglog(c, [r['h_auto'] for r in rows], '^-', color=colors[2],
                   label='real-time mode sub-step (refine_step auto)')
         ax.set_xlabel('shaft stiffness c [N·m/rad]  (J3 = 1e-3, J4 = 0.5 kg·m²)')

@@ -23,7 +23,7 @@ import sys
 import tempfile
 import time
 
-from .report import environment, fmt, replace_section, table
+from .report import environment, replace_section, table
 from .steady_state import SAMPLE_DT, SCENES, WARM  # the window as the steady-state benchmark's
 
 TITLE = '## Where the time goes at steady state (profile)'
@@ -189,34 +189,44 @@ def record(scenes, span, log):
     return results
 
 
+TOP_SHARE, TOP_ROWS = 0.02, 10   # the rows shown: ≥ 2 % of some scene's window, at most 10
+
+
 def section(results, command, load):
+    """One table: the pieces that take ≥ 2 % of some scene's window (at most 10), a column per
+    scene, the rest summed in the last row."""
     env = environment()
     L = [TITLE, '']
-    L += [f"Made by `{command}` (revision {env['revision']}, {env['date']}; {env['cpu']}, "
-          f"{env['cores']} cores, numba {env['versions']['numba']}; load average {load}). "
-          "Linux perf samples the steady-state window of each scene (as the section Speed at "
-          "steady state runs it: 2 s from rest, then the span with 0.1 s samples streamed) at "
-          f"{FREQUENCY} Hz; a kernel's share includes what it inlines (linkage, torques, dense "
-          "output, guards). `libm` rows are the elementary functions the kernels call (sincos: "
-          "the crank angle and the open output's modal rotation; pow: the step-size "
-          "controller). Shares below 1 % are summed in the last row.", '']
-    for w, counts in results:
-        total = sum(counts.values()) or 1
-        per_second = 1e6 * (w['stop'] - w['start']) / w['span']   # µs of wall per simulated s
-        rows, rest = [], 0
-        for key, n in sorted(counts.items(), key=lambda kv: -kv[1]):
-            if n / total < 0.01:
-                rest += n
-                continue
-            rows.append([f'`{key}`', f'{100 * n / total:.1f} %', fmt(n / total * per_second)])
-        rows.append(['(below 1 % each)', f'{100 * rest / total:.1f} %',
-                     fmt(rest / total * per_second)])
-        L += [f"**{w['scene']}**: {w['span']:g} s simulated in "
-              f"{1e3 * (w['stop'] - w['start']):.0f} ms ({per_second:.0f} µs per simulated "
-              f"second), {w['rhs']} right-hand sides, {w['steps']} steps, {total} samples.", '']
-        L += table(['where', 'share of the window', 'µs per simulated second'], rows)
-        L += ['']
-    return '\n'.join(L)
+    L += [f"`{command}` at {env['revision']}, {env['date']}; {env['cpu']}, {env['cores']} "
+          f"cores, numba {env['versions']['numba']}; load average {load}. Linux perf samples "
+          "each scene's steady-state window (as Speed at steady state runs it: 2 s from rest, "
+          f"then the span with 0.1 s samples streamed) at {FREQUENCY} Hz; a kernel's share "
+          "includes what LLVM inlined into it; `libm` rows are the elementary functions the "
+          "kernels call (sincos: the crank angle and the open output's modal rotation; pow: "
+          "the step-size controller).", '']
+    totals = [sum(counts.values()) or 1 for _, counts in results]
+    shares = {}
+    for (_, counts), total in zip(results, totals, strict=True):
+        for key, n in counts.items():
+            shares.setdefault(key, []).append(n / total)
+    top = sorted((k for k, v in shares.items() if max(v) >= TOP_SHARE),
+                 key=lambda k: -max(shares[k]))[:TOP_ROWS]
+    rows = []
+    for key in top:
+        rows.append([f'`{key}`'] + [f'{100 * n / total:.1f} %' for (w, counts), total
+                                    in zip(results, totals, strict=True)
+                                    for n in [counts.get(key, 0)]])
+    rest = [1.0 - sum(counts.get(k, 0) for k in top) / total
+            for (w, counts), total in zip(results, totals, strict=True)]
+    rows.append(['(the rest)'] + [f'{100 * r:.1f} %' for r in rest])
+    windows = [w for w, _ in results]
+    rows.append(['µs per simulated second (wall)'] + [
+        f"{1e6 * (w['stop'] - w['start']) / w['span']:.0f}" for w in windows])
+    rows.append(['simulated [s]; right-hand sides; steps; perf samples'] + [
+        f"{w['span']:g}; {w['rhs']}; {w['steps']}; {n}" for w, n in zip(windows, totals,
+                                                                         strict=True)])
+    L += table(['where (share of the window)'] + [w['scene'] for w in windows], rows)
+    return '\n'.join(L + [''])
 
 
 def main(argv=None):

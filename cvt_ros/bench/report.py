@@ -15,7 +15,8 @@ ROOT = Path(__file__).resolve().parents[2]
 OWN_TITLE = '# Benchmarks'
 
 
-OWN_SECTIONS = ('Speed at steady state', 'Scaling', 'Default settings', 'Work-precision',
+OWN_SECTIONS = ('Speed at steady state', 'Scaling', 'Clutch switches at every tolerance',
+                'Default settings', 'Work-precision',
                 'Speed-up at equal error', 'Numerical stability on hard cases',
                 'Stability limit of fixed-step RK4', 'Long run', 'Known defects')
 
@@ -97,18 +98,59 @@ def _own(head):
     return head.startswith('## ') and title.startswith(OWN_SECTIONS)
 
 
+def _key(head):
+    """The name a section is known by across runs: its OWN_SECTIONS prefix (a heading may
+    carry the run's span, 'Long run (1 h simulated)'), else the heading itself."""
+    title = (head or '').lstrip('#').strip()
+    return next((name for name in OWN_SECTIONS if title.startswith(name)), head)
+
+
 def write_report(path, text, keep_others=True):
-    """Write our sections first, then (``keep_others``) every section of the existing file we
-    did not write (the ROS node's, the recording's, …), unchanged and in their order."""
+    """Write the report ``text`` (a title block, then sections). ``keep_others`` with an
+    existing file: each section of ``text`` replaces the section of the same name where it
+    stands, a new one goes after the section ``text`` has before it, and everything else is
+    kept as it is: the file's own title block (BENCHMARKS.md's summary), the sections this
+    run did not make (a ``--sections`` subset) and those of other benchmarks."""
     path = Path(path)
-    kept = []
-    if keep_others and path.exists():
-        kept = [body for head, body in _blocks(path.read_text()) if not _own(head)]
-    out = text
-    if kept:
-        out = out.rstrip() + '\n\n' + ''.join(kept).lstrip('\n')
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(out if out.endswith('\n') else out + '\n')
+    if not (keep_others and path.exists()):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text if text.endswith('\n') else text + '\n')
+        return
+    new = [(_key(h), body) for h, body in _blocks(text) if h is not None and h.startswith('## ')]
+    old = _blocks(path.read_text())
+    present = {_key(h) for h, _ in old}
+    after = {}                       # a section not in the file → after its predecessor
+    previous = None
+    for key, body in new:
+        if key not in present:
+            after.setdefault(previous, []).append(body)
+        else:
+            previous = key
+    replaced = dict(new)
+    out = []
+    for k, (head, body) in enumerate(old):
+        key = _key(head)
+        if key in replaced:
+            out.append(replaced[key])
+        else:
+            out.append(body)
+        if k == 0 and None in after:     # sections before any the file has: after its title
+            out += after.pop(None)
+        if key in after:
+            out += after.pop(key)
+    for bodies in after.values():
+        out += bodies
+    path.write_text(''.join(b if b.endswith('\n\n') else b.rstrip('\n') + '\n\n'
+                            for b in out).rstrip() + '\n')
+
+
+def stamp(command, env, load):
+    """One line under a section's heading: how, where and when it was made. ``load``: (load
+    average at the start, at the end) of the part that made the section."""
+    versions = ', '.join(f'{k} {v}' for k, v in env['versions'].items() if k != 'matplotlib')
+    return (f"`{command}` at {env['revision']}, {env['date']}; {env['cpu']}, {env['cores']} "
+            f"cores, Python {env['python']}, {versions}; load average {load[0]:.2f} → "
+            f"{load[1]:.2f}.")
 
 
 def publish(text, out, title, log):

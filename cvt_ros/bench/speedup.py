@@ -115,46 +115,74 @@ def section_default(d, results, cfg, command):
     return L + ['']
 
 
+def _fastest_project(res, level):
+    """(method key, (time, exact)) of the project's fastest mode at a φ4 error level, or None."""
+    best = None
+    for k in res.curves:
+        if METHOD_BY_KEY[k].project:
+            t = time_at_error(res.curves[k], level)
+            if t and (best is None or t[0] < best[1][0]):
+                best = (k, t)
+    return best
+
+
+SHORT = {'dopri5': 'dopri5', 'dopri5_integrated': 'dopri5 (output integrated)', 'rk4': 'rk4'}
+
+
 def section_speedup(results, cfg):
+    """One table: per scene and φ4 error level, the project's fastest mode (its real-time
+    factor) and every baseline's time over it."""
     L = ['## Speed-up at equal error', '']
-    L += ['Ratio = (baseline time) / (project time) to reach the same relative φ4 error, both '
-          'interpolated on their Pareto fronts. The project side is its fastest mode at that '
-          'error (dopri5, or rk4 where it is faster); the real-time factor of that project '
-          'method is given with it.', '']
+    L += ['(baseline time) / (project time) to reach the same relative φ4 error, both '
+          'interpolated on their Pareto fronts (work-precision curves); the project side is its '
+          'fastest mode at that error, with its real-time factor. "≥": the project is already '
+          'more accurate at its loosest setting (a bound); "~": both are; n/r: the sweep did '
+          'not reach the level. Every method\'s real-time factor at each level: '
+          'speed_up.csv beside work_precision.csv.', '']
+    baselines = []
     for res in results:
-        L += [f'**{res.name}** ({res.duration:g} s)', '']
-        header = ['error level', 'project (RTF)']
-        baselines = [k for k in res.curves if not METHOD_BY_KEY[k].project]
-        header += [METHOD_BY_KEY[k].label for k in baselines]
-        rows = []
+        baselines += [k for k in res.curves if not METHOD_BY_KEY[k].project
+                      and k not in baselines]
+    header = ['scene', 'φ4 error', 'project (RTF)'] + [
+        METHOD_BY_KEY[k].label.replace('SUNDIALS ', '').replace(" (DAE + RK4)", '')
+        for k in baselines]
+    rows = []
+    for res in results:
         for level in cfg.levels:
-            best = None
-            for k in res.curves:
-                if METHOD_BY_KEY[k].project:
-                    t = time_at_error(res.curves[k], level)
-                    if t and (best is None or t[0] < best[1][0]):
-                        best = (k, t)
+            best = _fastest_project(res, level)
+            cells = [f'{res.name} ({res.duration:g} s)', f'{level:.0e}']
             if best is None:
-                rows.append([f'{level:.0e}', 'n/r'] + ['–'] * len(baselines))
+                rows.append(cells + ['n/r'] + ['–'] * len(baselines))
                 continue
             proj = best[1]
-            cells = [f'{level:.0e}', f"{METHOD_BY_KEY[best[0]].label} "
-                     f"({'≥ ' if not proj[1] else ''}{res.duration / proj[0]:.0f})"]
+            cells.append(f"{SHORT.get(best[0], best[0])} "
+                         f"({'≥ ' if not proj[1] else ''}{res.duration / proj[0]:.0f})")
             for k in baselines:
-                cells.append(ratio_text(time_at_error(res.curves[k], level), proj))
+                cells.append(ratio_text(time_at_error(res.curves[k], level), proj)
+                             .replace(' (both at their loosest)', '')
+                             if k in res.curves else '–')
             rows.append(cells)
-        L += table(header, rows)
-        L += ['']
-        # the real-time factor at each accuracy, per method
-        L += [f'Real-time factor at each accuracy ({res.name}):', '']
-        rows = []
-        for k, points in res.curves.items():
-            cells = [METHOD_BY_KEY[k].label]
-            for level in cfg.levels:
+    L += table(header, rows)
+    return L + ['']
+
+
+SPEEDUP_COLUMNS = ('scene', 'method', 'phi4_error_level', 'time_to_level_s', 'bound', 'rtf',
+                   'speed_up_of_the_project')
+
+
+def speedup_csv_rows(results, cfg):
+    """Per scene, method and error level: its time and real-time factor there, and the
+    project's (fastest mode's) speed-up over it."""
+    rows = []
+    for res in results:
+        for level in cfg.levels:
+            best = _fastest_project(res, level)
+            for k, points in res.curves.items():
                 t = time_at_error(points, level)
-                cells.append('n/r' if t is None else
-                             f"{'≥ ' if not t[1] else ''}{res.duration / t[0]:.3g}")
-            rows.append(cells)
-        L += table(['method'] + [f'RTF at {lv:.0e}' for lv in cfg.levels], rows)
-        L += ['']
-    return L
+                ratio = ('' if t is None or best is None or METHOD_BY_KEY[k].project
+                         else ratio_text(t, best[1]))
+                rows.append([res.name, METHOD_BY_KEY[k].label, f'{level:.0e}',
+                             t[0] if t else math.nan,
+                             '' if t is None or t[1] else 'upper (loosest setting)',
+                             res.duration / t[0] if t else math.nan, ratio])
+    return rows

@@ -133,11 +133,14 @@ def section_limits(rows, cfg, plots):
               "fails well below the stability limit: there the shaft mode is slow and the step "
               "is so long (the crank turns ~0.3 rad per step) that the truncation error alone "
               "leaves a residual above 1e-2, while nothing grows (growth criterion).", '']
-    L += ["For the stiffer shafts the energy criterion falls at the theoretical limit "
-          "(limit/theory ≈ 1.00: RK4 damps the shaft mode numerically just below 2.83/λ and "
-          "amplifies it just above); the growth criterion lets ~20 % more through because "
-          "just above the limit the amplification per step is barely above one and acts only "
-          "while the clutch is open, so θ takes longer than the span to grow tenfold.", '']
+    growth = [r['limit_growth'] / r['theory'] for r in rows]
+    L += [f"The growth criterion holds up to {min(growth):.1f}–{max(growth):.1f}× the theory: λ "
+          "is the simulator's bound on the engaged twist mode, with the rocker's own inertia "
+          "J2 + J3 on the clutch's side, while the crank's inertia reflected through the linkage "
+          "(J1/u², u = ω2/ω1 ≤ 0.33 here) makes the true mode ~9× slower; the open shaft's mode "
+          "is not stepped at all (solved exactly). The energy criterion fails earlier, where the "
+          "truncation error alone leaves a residual above 1e-2. The real-time mode's 0.5/λ of "
+          "the bound is well inside both.", '']
     if 'stability' in plots:
         L += [f"![stability limit]({plots['stability']})", '']
     body = []

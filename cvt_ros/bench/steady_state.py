@@ -171,12 +171,11 @@ def section_steady(rows, load):
            "two ways: **sequential**, each call's state waiting on the last call's derivative "
            "(y + 1e-30·f: the same numbers), as every Runge–Kutta stage waits on the one before "
            "it (the floor a one-step solver can reach); and **independent** calls, which the "
-           "processor overlaps (the lower figure, kept for comparison with earlier versions of "
-           "this table). Floor ratio = wall / floor; the target is read against the sequential "
-           "floor. Targets (issue 12): ≥ "
+           "processor overlaps. Floor ratio = wall / floor, the target read against the "
+           "sequential floor. Targets (issue 12): ≥ "
            f"{TARGETS['paper']:.0f}× scipy on paper and conveyor, ≥ {TARGETS['stiff_shaft']:.0f}× "
            f"on the stiff shaft, floor ratio ≤ {FLOOR_TARGET}, ≤ {REJECT_TARGET} rejected steps "
-           f"per switch. Load average during the run: {load}.", '']
+           "per switch.", '']
     body = []
     for r in rows:
         speed = r['scipy_wall'] / r['wall']

@@ -353,61 +353,87 @@ def setting_text(method, p):
     return f'h {fmt(p.setting)}'
 
 
-def section_scene(res, cfg, plots):
-    L = [f'### Scene `{res.name}` ({res.duration:g} s)', '']
-    ref = res.reference
-    L += [f"Reference: {ref.label}: φ4 = {ref.phi4:.15g} rad, ω4 = {ref.omega4:.12g} rad/s, "
-          f"{len(ref.switches)} clutch switches, {ref.wall:.2f} s. Checks:", '']
+CSV_COLUMNS = ('scene', 'span_s', 'method', 'setting', 'status', 'wall_s', 'repeats', 'rtf',
+               'phi4_rel_error', 'omega4_rel_error', 'switch_time_error_s', 'switches',
+               'reference_switches', 'work', 'work_counted', 'rejected', 'energy_residual',
+               'step_taken_s')
+
+
+def csv_rows(results):
+    """Every point of every curve, one row each (the page shows the plots and the summary)."""
     rows = []
-    for what, e_phi, e_w, n, dt, wall in ref.checks:
-        rows.append([what, fmt(e_phi), fmt(e_w),
-                     f'{n}/{len(ref.switches)}', fmt(dt) if math.isfinite(dt) else 'nan',
-                     fmt(wall)])
-    L += table(['check', 'φ4 rel. diff.', 'ω4 rel. diff.', 'switches', 'max |Δt| [s]',
-                'wall [s]'], rows)
-    L += ['']
-    if 'output integrated' in ref.label and any('closed form' in c[0] for c in ref.checks):
-        L += ["Here the two project references disagree: the closed-form open-clutch output "
-              "misses short elastic re-engagements of the clutch (a known defect, see "
-              "[Known defects](#known-defects)), so the reference is the variant with that "
-              "output integrated, which converges cleanly (its rtol 1e-12 check).", '']
-    for what, e_phi, _, n, _, _ in ref.checks:
-        if what.startswith('scipy') and (n != len(ref.switches) or e_phi > 1e-9):
-            L += [f"The scipy check disagrees ({n} switches against {len(ref.switches)}): "
-                  'solve_ivp detects an event only by a sign change of the guard between the ends '
-                  'of a step, so a short elastic bounce of the clutch (the slip dips below zero '
-                  'and back inside one step: the stiff shaft makes µs-long contacts) is missed, '
-                  'and the trajectory goes on through a contact that should have engaged. The '
-                  'project looks for such dips inside the step (Hermite minimum of the guard). '
-                  'The reference is therefore checked here by the project\'s own convergence, '
-                  'and the scipy curves carry this model error on top of their tolerance '
-                  'error.', '']
-            break
-    L += res.notes and (res.notes + ['']) or []
-    if res.name in plots:
-        L += [f'![work-precision {res.name}]({plots[res.name]})', '']
-    for key, points in res.curves.items():
-        m = METHOD_BY_KEY[key]
-        L += [f'**{m.label}**', '']
-        rows = []
-        for p in points:
-            if not p.ok:
-                rows.append([setting_text(m, p), p.status, '', '', '', '', '', ''])
-                continue
-            sw = fmt(p.switch_err) if math.isfinite(p.switch_err) else \
-                f'nan ({p.switches}/{len(ref.switches)})'
-            work = f'{p.work} ({p.rejected})' if m.knob == 'rtol' and not m.counts_rhs \
-                else p.work
-            rows.append([setting_text(m, p), fmt(p.wall), f'{res.duration / p.wall:.3g}',
-                         fmt(p.phi4_err), fmt(p.omega4_err), sw, work,
-                         fmt(p.energy) if math.isfinite(p.energy) else '–'])
-        L += table(['setting', 'wall [s]', 'RTF', 'φ4 rel. error', 'ω4 rel. error',
-                    'switch-time error [s]',
-                    'RHS evals' if m.counts_rhs else ('steps (rejected)' if m.knob == 'rtol'
-                                                 else 'steps'),
-                    'energy residual'], rows)
-        L += ['']
+    for res in results:
+        for key, points in res.curves.items():
+            m = METHOD_BY_KEY[key]
+            for p in points:
+                work = ('rhs' if m.counts_rhs else 'steps')
+                rows.append([res.name, res.duration, m.label, setting_text(m, p), p.status,
+                             p.wall, p.repeats, res.duration / p.wall if p.ok else math.nan,
+                             p.phi4_err, p.omega4_err, p.switch_err, p.switches,
+                             len(res.reference.switches), p.work, work,
+                             p.rejected if m.knob == 'rtol' and not m.counts_rhs else '',
+                             p.energy, p.h])
+    return rows
+
+
+def write_csv(path, header, rows):
+    """A table for spreadsheets and pandas: floats with 6 significant digits, nan as empty."""
+    import csv
+
+    def cell(x):
+        if isinstance(x, float):
+            return '' if math.isnan(x) else f'{x:.6g}'
+        return x
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, 'w', newline='') as f:
+        w = csv.writer(f)
+        w.writerow(header)
+        w.writerows([[cell(x) for x in row] for row in rows])
+    return path
+
+
+def _scipy_disagrees(res):
+    return any(what.startswith('scipy') and (n != len(res.reference.switches) or e_phi > 1e-9)
+               for what, e_phi, _, n, _, _ in res.reference.checks)
+
+
+def section_references(results):
+    """One row per scene: the reference and how far its three checks are from it."""
+    rows = []
+    for res in results:
+        ref = res.reference
+        n = len(ref.switches)
+        checks = '; '.join(
+            f"{what.split(', atol')[0].replace('project dopri5, ', '')}: "
+            f"{fmt(e_phi)}{'' if k == n else f' ({k}/{n} switches)'}"
+            for what, e_phi, _, k, _, _ in ref.checks)
+        dt = max((c[4] for c in ref.checks if math.isfinite(c[4])), default=math.nan)
+        rows.append([f'`{res.name}`', f'{res.duration:g} s',
+                     ref.label.split('max_step 1e-3, ')[-1], f'{ref.phi4:.12g}', n, checks,
+                     fmt(dt)])
+    L = table(['scene', 'span', 'reference output', 'φ4 [rad]', 'switches',
+               'φ4 rel. difference of each check', 'max switch Δt [s]'], rows) + ['']
+    for res in results:
+        if _scipy_disagrees(res):
+            L += [f"`{res.name}`: scipy's check misses switches — solve_ivp sees an event only "
+                  "by a sign change of the guard between two step ends, so a short elastic "
+                  "bounce inside one step goes unseen; the reference rests on the project's own "
+                  "convergence there, and the scipy curves carry that model error.", '']
+        L += [f'`{res.name}`: {note}' for note in res.notes] + (res.notes and [''] or [])
     return L
+
+
+def section_plots(results, plots):
+    """The work-precision plots two to a row."""
+    shown = [res for res in results if res.name in plots]
+    L = []
+    for k in range(0, len(shown), 2):
+        pair = shown[k:k + 2]
+        L += ['| ' + ' | '.join(f'![work-precision {r.name}]({plots[r.name]})' for r in pair)
+              + ' |']
+        if k == 0:
+            L += ['|' + '---|' * len(pair)]
+    return L + [''] if L else []
 
 
 def section_cvode(overhead, cfg):
@@ -416,20 +442,12 @@ def section_cvode(overhead, cfg):
         return [f'CVODE left out of this run: {line}.' for line in cfg.skipped] + ['']
     if overhead is None:
         return []
-    return [f"CVODE is SUNDIALS' CVODE from the scikit-sundae wheel (`sksundae.cvode.CVODE`; the "
-            "sundials4py package the issue names has no wheel for this platform): dense direct "
-            "linear solver with SUNDIALS' difference-quotient Jacobian (12 RHS calls each, "
-            "counted in the RHS evaluations), one CVODE instance per clutch mode, restarted "
-            "(CVodeReInit) at each switch. Compiled: the right-hand side and the guard are the "
-            "project's numba kernels, run on SUNDIALS' own memory; not compiled: scikit-sundae "
-            "calls Python callables only (no C function pointer can be handed to it), so each "
-            "RHS and root evaluation passes through a Python wrapper. Measured in this run on "
-            f"the paper scene: the RHS kernel alone {overhead['kernel_s'] * 1e9:.0f} ns per call "
-            f"(compiled loop), called from Python {overhead['python_call_s'] * 1e9:.0f} ns; CVODE "
-            f"BDF at rtol 1e-8 spends {overhead['cvode_per_rhs_s'] * 1e6:.1f} µs of wall time "
-            "per RHS evaluation (the wrapper and scikit-sundae's N_Vector → numpy views, the "
-            "root function, SUNDIALS' own work), i.e. "
-            f"{overhead['cvode_per_rhs_s'] / overhead['kernel_s']:.0f}× the kernel's cost. "
-            "Like scipy, CVODE finds a root only where the guard changes sign between two "
-            "step ends (or root-finding checks), so a bounce of the clutch inside one step can "
-            "go unseen (n/N in the switch column).", '']
+    return [f"CVODE: SUNDIALS' CVODE from the scikit-sundae wheel (dense direct linear solver, "
+            "difference-quotient Jacobian counted in the RHS evaluations, one instance per "
+            "clutch mode, re-initialised at each switch); the right-hand side and the guard are "
+            "the project's compiled kernels, called through Python wrappers (scikit-sundae "
+            f"takes no C function pointer): the kernel {overhead['kernel_s'] * 1e9:.0f} ns a "
+            f"call, from Python {overhead['python_call_s'] * 1e9:.0f} ns, CVODE BDF at rtol "
+            f"1e-8 {overhead['cvode_per_rhs_s'] * 1e6:.1f} µs of wall time per RHS evaluation "
+            f"({overhead['cvode_per_rhs_s'] / overhead['kernel_s']:.0f}× the kernel). Like "
+            "scipy, CVODE sees a root only where the guard changes sign between step ends.", '']

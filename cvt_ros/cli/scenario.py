@@ -1,8 +1,9 @@
 """``cvt-sim scenario ...``: check the inputs, run the library, print, return an exit code.
 
 Exit codes: 0 the run completed, 1 it stopped early (controller error, simulation failure; the
-outputs hold everything up to that moment), 2 bad input (scenario file, controller spec, output
-path), nothing run.
+outputs hold everything up to that moment) or it completed but the solver's self-check suspects
+a missed clutch event (the outputs are written, the reason is printed, as ``cvt-sim run`` does),
+2 bad input (scenario file, controller spec, output path), nothing run.
 """
 import sys
 
@@ -125,6 +126,9 @@ def run_command(args):
     missing = run.missing_metrics()
     if missing:   # a run too short for its step metrics is no answer to read as one
         code = _fail(missing, 1)
+    suspect = missed_event_text(run.self_check)
+    if suspect:   # a wrong answer is never silent (docs/solver.md, the self-check)
+        code = _fail(suspect, 1)
     try:
         written = _write_outputs(run, args, outputs)
     except OutputError as exc:
@@ -137,6 +141,25 @@ def run_command(args):
         if run.recording_error is not None:
             code = _fail(f"recording stopped: {run.recording_error}", 1)
     return code
+
+
+def missed_event_text(check):
+    """Why the run's answer is suspect, from the solver's self-check (Simulator.self_check(); None
+    where the plant ran in another process: the node's /diagnostics and recording carry it), or
+    None when it suspects nothing."""
+    if not check or not (check['possible_missed_events'] or check['stray_samples']):
+        return None
+    parts = []
+    if check['possible_missed_events']:
+        parts.append(f"{check['possible_missed_events']} clutch switch(es) found only after the "
+                     f"step that crossed them (first at t = "
+                     f"{check['first_possible_missed_event_s']:.9g} s)")
+    if check['stray_samples']:
+        parts.append(f"{check['stray_samples']} sample(s) outside their clutch mode (first at "
+                     f"t = {check['first_stray_sample_s']:.9g} s)")
+    return (f"the solver's self-check suspects a missed clutch event ({check['solver']}): "
+            f"{'; '.join(parts)}; a tighter solver.rtol (dopri5) or solver.fixed_step (rk4) in "
+            "the scenario's overrides shows whether it is real")
 
 
 def _write_outputs(run, args, outputs):

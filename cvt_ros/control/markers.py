@@ -10,10 +10,18 @@ the 1 kHz control rate) in the frame ``frame_id`` (x along the frame line O1→O
 * the output shaft as two spokes behind O2: the shaft's input end at φ3 and its output end at φ4
   (the twist φ3 − φ4 drawn ``twist_gain`` times larger), and a text with ω4 and the crank length.
 
+A machine of N ≥ 2 paths (joint_states with ``rocker_1 … rocker_N``, issue 33) is drawn path by
+path, stacked along the crank shaft (z = ``path_spacing``·(k − 1)): path k's crank at φ1 + δ_k
+(``phase_offsets``, [] = 2π·(k − 1)/N, the scene's default), its coupler, its rocker at φ2,k and
+its clutch disc, green while that clutch transmits torque (rocker k's effort > 0). Path 1 keeps
+the one-path picture's marker ids (0 … 7); path k ≥ 2 adds ids 8 + 4·(k − 2) … (crank, coupler,
+rocker, clutch), so a display set up for one path shows the first path of any machine.
+
 Geometry (paper eq. 1, physics/linkage.py): O1 = (0, 0), A = a·(cos φ1, sin φ1), O2 = (h, 0),
 B = O2 + b·(cos φ2, sin φ2); the coupler length d closes the loop. The crank length a is the
 ``crank_length`` joint when the message has it, else solved from φ1, φ2 (an older recording).
-Parameters: rocker_length, coupler_length, pivot_distance [m] (the scene's ``linkage.*``).
+Parameters: rocker_length, coupler_length, pivot_distance [m] (the scene's ``linkage.*``),
+phase_offsets [rad] and path_spacing [m] (N ≥ 2).
 """
 import math
 import sys
@@ -32,6 +40,14 @@ LINE_WIDTH = 0.008       # m
 COLORS = {'frame': (0.5, 0.5, 0.5), 'crank': (0.12, 0.47, 0.71), 'coupler': (1.0, 0.5, 0.05),
           'rocker': (0.58, 0.4, 0.74), 'engaged': (0.17, 0.63, 0.17), 'free': (0.84, 0.15, 0.16),
           'input': (0.3, 0.3, 0.3), 'output': (0.1, 0.1, 0.1)}
+
+
+def path_offsets(n, offsets=()):
+    """Each path's crank phase δ_k [rad]: ``offsets`` when it has one per path, else the
+    scene's default 2π·(k − 1)/N."""
+    if len(offsets) == n:
+        return [float(x) for x in offsets]
+    return [2.0 * math.pi * k / n for k in range(n)]
 
 
 def linkage_points(phi1, phi2, a, b, h):
@@ -66,9 +82,13 @@ class LinkageMarkersNode(Node):
         self.frame_id = str(self.declare_parameter('frame_id', 'cvt').value)
         self.display_rate = float(self.declare_parameter('display_rate', 30.0).value)
         self.twist_gain = float(self.declare_parameter('twist_gain', 10.0).value)
+        self.phase_offsets = list(self.declare_parameter(
+            'phase_offsets', [0.0]).value)   # (a double array: [0.0] stands for the default)
+        self.path_spacing = float(self.declare_parameter('path_spacing', 0.02).value)
         self._next_wall = 0.0
         self._order = None
         self._actuator = None
+        self._rockers = []
         self.linkage_markers_publisher = self.create_publisher(MarkerArray, 'linkage_markers', 10)
         self.joint_states_subscription = self.create_subscription(
             JointState, interface.JOINT_STATES, self.joint_states_callback,
@@ -83,6 +103,7 @@ class LinkageMarkersNode(Node):
             self._order = interface.joint_order(list(msg.name))
             hits = [i for i, n in enumerate(msg.name) if n.endswith('crank_length')]
             self._actuator = hits[0] if len(hits) == 1 else None
+            self._rockers = interface.rocker_order(list(msg.name))
             if self._order is None:
                 return
         self.linkage_markers_publisher.publish(self.markers(msg))
@@ -92,8 +113,11 @@ class LinkageMarkersNode(Node):
         phi1, phi2, phi3, phi4 = s.position
         a = (float(msg.position[self._actuator]) if self._actuator is not None
              else crank_length_from(phi1, phi2, self.b, self.d, self.h))
-        o1, pa, o2, pb = linkage_points(phi1, phi2, a, self.b, self.h)
-        engaged = s.effort[1] > 0.0
+        rockers = self._rockers if len(self._rockers) > 1 else []
+        offsets = path_offsets(len(rockers), self.phase_offsets) if rockers else [0.0]
+        o1, pa, o2, pb = linkage_points(phi1 + offsets[0], phi2, a, self.b, self.h)
+        torques = [float(msg.effort[i]) for i in rockers] if len(msg.effort) else []
+        engaged = (torques[0] if torques else s.effort[1]) > 0.0
         out = MarkerArray()
 
         def marker(mid, kind, color, scale=LINE_WIDTH):
@@ -124,8 +148,26 @@ class LinkageMarkersNode(Node):
                         Point(x=o2[0] + spoke * math.cos(angle), y=spoke * math.sin(angle), z=z)]
         text = marker(7, Marker.TEXT_VIEW_FACING, _color('output'), scale=0.02)
         text.pose.position.x, text.pose.position.y = 0.5 * self.h, -0.12
-        text.text = (f"ω4 {s.velocity[3]:6.2f} rad/s   a {a * 1e3:5.2f} mm   "
-                     f"clutch {'engaged' if engaged else 'free'}")
+        if rockers:
+            held = [str(k) for k, torque in enumerate(torques, 1) if torque > 0.0]
+            clutches = f"clutches engaged {','.join(held) or 'none'} of {len(rockers)}"
+        else:
+            clutches = f"clutch {'engaged' if engaged else 'free'}"
+        text.text = f"ω4 {s.velocity[3]:6.2f} rad/s   a {a * 1e3:5.2f} mm   {clutches}"
+        for k in range(1, len(rockers)):   # paths 2 … N, stacked along the crank shaft
+            z = self.path_spacing * k
+            phi2_k = float(msg.position[rockers[k]])
+            _, pa_k, _, pb_k = linkage_points(phi1 + offsets[k], phi2_k, a, self.b, self.h)
+            base = 8 + 4 * (k - 1)
+            for i, (name, p, q) in enumerate((('crank', o1, pa_k), ('coupler', pa_k, pb_k),
+                                              ('rocker', o2, pb_k))):
+                m = marker(base + i, Marker.LINE_STRIP, _color(name))
+                m.points = [Point(x=p[0], y=p[1], z=z), Point(x=q[0], y=q[1], z=z)]
+            disc = marker(base + 3, Marker.CYLINDER,
+                          _color('engaged' if torques[k] > 0.0 else 'free', 0.8))
+            disc.pose.position.x, disc.pose.position.z = o2[0], z
+            disc.scale.x = disc.scale.y = 0.25 * self.b
+            disc.scale.z = 0.01
         return out
 
 

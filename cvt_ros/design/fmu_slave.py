@@ -17,16 +17,30 @@ outputs ``<joint>.angle`` [rad] and ``<joint>.speed`` [rad/s] of the joints cran
 clutch_output, output_shaft (the node's joint_states), ``crank_length`` [m] (actual),
 ``clutch_engaged`` (1 engaged, 0 not: a Real, which every importer takes) and ``clutch_torque``
 [N·m]; every physics parameter of the scene as a fixed parameter under its dotted name.
+
+pythonfmu's native library (0.6.5 to 0.7.0) has three reference-counting defects that corrupt
+the importer's heap; this module works around them (docs/design.md, "pythonfmu's native
+library"): see :func:`_return_lent_globals`, :func:`_release_at_exit` and
+:func:`_outlive_double_release`.
 """
+import atexit
+import ctypes
 import json
 import math
+import os
+import sys
 from pathlib import Path
 
 from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Integer, Real, String
+from pythonfmu import __version__ as PYTHONFMU_RELEASE  # the FMU's own copy: its library's
 from pythonfmu.default_experiment import DefaultExperiment
 from pythonfmu.enums import Fmi2Status
 
 SCENE_FILE = 'cvt_scene.json'
+# the pythonfmu releases whose native library has the defects below (a test fails on another)
+DEFECTIVE_PYTHONFMU = ('0.6.5', '0.6.6', '0.6.7', '0.6.8', '0.6.9', '0.7.0')
+LIBRARY_DEFECTS = PYTHONFMU_RELEASE in DEFECTIVE_PYTHONFMU
+
 JOINTS = ('crank', 'rocker', 'clutch_output', 'output_shaft')   # interface.JOINTS
 OUTPUTS = tuple((f'{joint}.angle', f'phi{k}', 'rad') for k, joint in enumerate(JOINTS, 1)) + \
     tuple((f'{joint}.speed', f'omega{k}', 'rad/s') for k, joint in enumerate(JOINTS, 1)) + (
@@ -50,6 +64,8 @@ class CvtTransmission(Fmi2Slave):
         self.step = config['step']
         self.default_experiment = DefaultExperiment(0.0, config['stop_time'], config['step'])
         self.parameters = dict(config['values'])
+        if LIBRARY_DEFECTS:
+            _release_at_exit(self.resources)
         self.sim = self.stepper = None
         self.row = {name: 0.0 for name, _, _ in OUTPUTS}
         self.inputs = {name: self.parameters[key] for name, key, _, _ in INPUTS}
@@ -81,6 +97,8 @@ class CvtTransmission(Fmi2Slave):
             self._initialize()
         except Exception as exc:   # the importer hears why (a bad parameter names itself)
             self.log(f'{type(exc).__name__}: {exc}', Fmi2Status.error)
+            if LIBRARY_DEFECTS:
+                _outlive_double_release(self)
             raise
 
     def _initialize(self):
@@ -125,3 +143,55 @@ class CvtTransmission(Fmi2Slave):
             self.log(f't = {current_time:.9g} s: {type(exc).__name__}: {exc}', Fmi2Status.error)
             return False
         return True
+
+
+# ---- pythonfmu's native library (0.6.5–0.7.0): its defects, worked around -------------------
+
+_exit_releases = {}   # path → handle of each loaded copy of the FMU's library, released at exit
+
+
+def _return_lent_globals(namespace, module_globals):
+    """The library finds the model class by executing this file a second time, into a fresh
+    locals dict (``namespace``), and then Py_DECREFs the module's globals — a reference
+    PyModule_GetDict only lent it. One count short, the dict can be freed while the module still
+    points at it. Give the reference back, once per such execution. (Code at this level must not
+    raise: the library would go on with the exception set.)"""
+    if namespace is not module_globals and LIBRARY_DEFECTS:
+        ctypes.pythonapi.Py_IncRef(ctypes.py_object(module_globals))
+
+
+def _release_at_exit(resources):
+    """The library keeps its interpreter state in a static ``shared_ptr`` that is released twice
+    when the process exits with the library loaded (always: dlclose cannot unload it): by the
+    static's destructor (an exit handler) and again by the library's destructor function
+    (``pyState = nullptr`` on the destroyed pointer), which then decrements a count inside the
+    freed block — glibc aborts later ("corrupted double-linked list"), or not, as the heap lies.
+    Released once, earlier, by the library's own ``finalizePythonInterpreter`` (from Python's
+    exit, before the process's exit handlers), the pointer is null for both."""
+    if not sys.platform.startswith('linux'):
+        return        # Windows: DllMain releases it before the DLL's static destructors (untested)
+    for path in sorted((Path(resources).parent / 'binaries' / 'linux64').glob('*.so')):
+        if str(path) in _exit_releases:
+            continue
+        try:          # the copy the importer loaded (RTLD_NOLOAD: never a second one)
+            library = ctypes.CDLL(str(path), mode=os.RTLD_NOLOAD | os.RTLD_NOW)
+        except OSError:
+            continue
+        if not _exit_releases:
+            atexit.register(_release_libraries)
+        _exit_releases[str(path)] = library
+
+
+def _release_libraries():
+    for library in _exit_releases.values():
+        library.finalizePythonInterpreter()
+
+
+def _outlive_double_release(slave):
+    """When a call raises, the library Py_DECREFs the instance, its class and its log queue, and
+    does so again when the importer frees the instance: take one more reference to each first."""
+    for obj in (slave, type(slave), slave.log_queue):
+        ctypes.pythonapi.Py_IncRef(ctypes.py_object(obj))
+
+
+_return_lent_globals(locals(), globals())

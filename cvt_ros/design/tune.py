@@ -173,7 +173,6 @@ def tune(scene, overrides=None, settings=None, tau_c=None, setpoint_step=None, d
     from ..analysis.steady import find_steady_state
     from ..scenario.harness import run_scenario
     from ..scenario.model import ScenarioError, load_scenario
-    from ..sweep.metrics import trace_of_run
     say = say or (lambda text: None)
     overrides = dict(overrides or {})
     values = load_scene(scene, overrides, origins)
@@ -222,10 +221,7 @@ def tune(scene, overrides=None, settings=None, tau_c=None, setpoint_step=None, d
             raise DesignError(f"the check's scenario: {exc}") from None
         run = run_scenario(scenario, None, 'offline', keep_samples=True)   # (its whole trace)
     from ..analysis.cycles import cycle_metrics
-    from ..solver.simulator import RunResult
-    switches = [_Switch(t, e) for t, e in run.switches]
-    cycles, bounds = cycle_metrics(trace_of_run(scenario.values,
-                                                RunResult(run.samples, switches)))
+    cycles, bounds = cycle_metrics(run.trace())   # (N paths: each path's switches, any clutch)
     mid = 0.5 * (bounds[:-1] + bounds[1:])
     before = mid < lead
     steady = find_steady_state(cycles, 0, int(np.count_nonzero(before)), tolerance=2e-3)
@@ -245,14 +241,6 @@ def tune(scene, overrides=None, settings=None, tau_c=None, setpoint_step=None, d
                   steady.found, run.error)
     return Tuning(str(scene), {'kp': kp, 'ki': ki}, tau_c, theta_eff, integral_time, plant,
                   check, setpoint_step)
-
-
-@dataclass(frozen=True)
-class _Switch:
-    """A (t, engaged) switch of a scenario run in the shape the cycle analysis reads."""
-    t: float
-    engaged: bool
-    kind: str = 'switch'
 
 
 __all__ = ['Check', 'RULE', 'Tuning', 'predict', 'simc', 'step_figures', 'tune']

@@ -24,6 +24,7 @@ from .. import parameters as params_mod
 from ..parameters import NODE_PARAMETERS, PHYSICS_PARAMETERS, ParameterError
 from ..physics.drives import crank_actuator
 from ..physics.linkage import GrashofError, check_crank_lengths_fit, grashof_bound
+from ..solver.clutch_sets import set_changes
 from ..solver.fidelity import make_simulator
 from ..solver.output import COL
 from ..solver.period import PeriodStepper
@@ -36,6 +37,9 @@ DISTURBANCE = 'disturbance.file'
 #: Parameters the device takes at a period boundary (the node queues them for its loop thread):
 #: the physics and the disturbance schedule.
 PERIOD_NAMES = PHYSICS_NAMES | {DISTURBANCE}
+#: The machine's build: a running device keeps its paths (physics/paths.py's state has one
+#: rocker per path, phased on the crank).
+PATH_NAMES = ('paths.count', 'paths.phase_offsets')
 RING_SIZE = 4096   # step times kept for percentiles
 NO_EVENTS = ()     # a period without clutch switches (most of them)
 
@@ -109,6 +113,35 @@ def disturbance_schedule(values):
         raise ParameterError(DISTURBANCE, str(exc)) from None
 
 
+def _check_paths_kept(values, changes):
+    """ParameterError unless ``changes`` keep the paths as they are (the same count, the same
+    offsets, however spelt: [] is 2π·(k − 1)/N)."""
+    if 'paths.count' in changes and changes['paths.count'] != values['paths.count']:
+        raise ParameterError('paths.count', _path_refusal('paths.count', changes['paths.count'],
+                                                          values))
+    if 'paths.phase_offsets' in changes:
+        value = changes['paths.phase_offsets']
+        try:
+            same = params_mod.phase_offsets(dict(values, **{
+                'paths.phase_offsets': tuple(float(x) for x in value or ())})) == \
+                params_mod.phase_offsets(values)
+        except (TypeError, ValueError):
+            same = False
+        if not same:
+            raise ParameterError('paths.phase_offsets',
+                                 _path_refusal('paths.phase_offsets', value, values))
+
+
+def _path_refusal(name, value, values):
+    shown = list(value) if not isinstance(value, (int, float, str)) else value
+    now = values['paths.count'] if name == 'paths.count' else list(
+        params_mod.phase_offsets(values))
+    return (f"{shown!r} refused: the paths are the machine's build (each its own crank-rocker "
+            f"and one-way clutch, phased on the one crank); a running device neither adds nor "
+            f"removes a path nor re-phases one (now {now!r}). Start it again with the new value "
+            f"(the node: a params file or `-p {name}:=...`)")
+
+
 def check_parameter_change(values, changes, present, commanded):
     """The validated values after ``changes``, or ParameterError / GrashofError with the reason.
 
@@ -116,6 +149,7 @@ def check_parameter_change(values, changes, present, commanded):
     [m]; a new geometry must leave room for both (``check_crank_lengths_fit``). A new
     disturbance file (or load limit) is read and checked.
     """
+    _check_paths_kept(values, changes)
     new = params_mod.validate(dict(values, **changes))
     if DISTURBANCE in changes or 'limits.load_torque' in changes:
         disturbance_schedule(new)
@@ -151,7 +185,11 @@ class Device:
         self.timing = timing
         self.step_ns = Ring()
         self.sim = self.stepper = None
-        self.events = NO_EVENTS   # clutch switches inside the last period (grazes left out)
+        # clutch switches inside the last period (grazes left out): ClutchSwitch for one path;
+        # for N ≥ 2 one solver.clutch_sets.SetChange per switching instant (the engaged set)
+        self.events = NO_EVENTS
+        self.n_paths = int(values.get('paths.count', 1))
+        self.engaged_set = 0      # N ≥ 2: the engaged clutches (bit k − 1 = path k)
         self.crank_rate = 0.0     # the actuator's rate at the end of the last period [m/s]
         self.disturbance = disturbance_schedule(self.values)
         self.reset()
@@ -186,6 +224,10 @@ class Device:
             self.fault = f"reset failed: {exc}"
             raise
         self.stepper = PeriodStepper(self.sim, self.dt)
+        self._sync_engaged_set()
+
+    def _sync_engaged_set(self):
+        self.engaged_set = self.sim.engaged_set if self.n_paths > 1 else int(self.sim.engaged)
 
     @property
     def t(self):
@@ -277,7 +319,8 @@ class Device:
         """Apply parameter changes now (checked again against the present state); physics ones
         go to the simulator, which books the stored energy's jump."""
         new = self.check_parameters(changes)
-        physics = {k: new[k] for k in changes if k in PHYSICS_NAMES}
+        # (the paths: checked to be the same build, however spelt; nothing for the simulator)
+        physics = {k: new[k] for k in changes if k in PHYSICS_NAMES and k not in PATH_NAMES}
         if DISTURBANCE in changes:
             # the new schedule from now on: its rows already due apply at the next period (the
             # last of them wins: the value the schedule has in force now)
@@ -285,6 +328,7 @@ class Device:
             self._next_disturbance = 0
         if physics:
             self.sim.update_parameters(physics)
+            self._sync_engaged_set()   # (a live change re-decides the clutches)
             if 'linkage.crank_length' in physics:
                 self.crank_target = new['linkage.crank_length']
             if 'load.torque' in physics:
@@ -328,6 +372,8 @@ class Device:
             self.step_ns.add(time.perf_counter_ns() - c0)
         switches = stepper.switches
         self.events = [s for s in switches if s.kind != 'graze'] if switches else NO_EVENTS
+        if self.events and self.n_paths > 1:
+            self.events, self.engaged_set = set_changes(self.events, self.engaged_set)
         self.crank_rate = stepper.crank_rate
         return row
 
@@ -365,10 +411,12 @@ class Device:
             'crank_length': float(sim.crank_length), 'crank_target': sim.crank_length_target,
             'grashof_bound': float(sim.grashof_bound), 'load_torque': sim.load_torque,
             'engaged': bool(sim.engaged), 'residual': float(energy['residual']),
+            'n_paths': self.n_paths, 'engaged_set': self.engaged_set,
+            'path_switches': tuple(sim.path_switch_counts),
             'relative_residual': float(energy['relative_residual']),
             'self_check': sim.self_check(),
         }
 
 
-__all__ = ['CommandError', 'Device', 'PERIOD_NAMES', 'Period', 'Ring', 'check_parameter_change',
-           'disturbance_schedule', 'physics_values']
+__all__ = ['CommandError', 'Device', 'PATH_NAMES', 'PERIOD_NAMES', 'Period', 'Ring',
+           'check_parameter_change', 'disturbance_schedule', 'physics_values']

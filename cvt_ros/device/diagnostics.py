@@ -124,6 +124,15 @@ class Reporter:
             ('first_possible_missed_event_time', f"{first_missed:.6f}"),
             ('fault', fault or ''),
         ]
+        n = snap.get('n_paths', 1)
+        if n > 1:   # N paths (issue 33): which clutches hold now, each one's switches
+            engaged = snap['engaged_set']
+            values += [
+                ('paths', str(n)),
+                ('clutches_engaged', ','.join(str(k + 1) for k in range(n) if engaged >> k & 1)
+                 or 'none'),
+                ('switches_per_path', ','.join(str(c) for c in snap['path_switches'])),
+            ]
         if fault:
             level, message = ERROR, f"simulation fault: {fault}"
         elif window_missed or window_resyncs:

@@ -5,9 +5,11 @@ the health report ``diagnostics.py``; the full interface is in docs/node.md.
 * subscriptions (reliable, keep all): ``load_torque_cmd`` [N·m] and ``crank_length_cmd`` [m]
   (std_msgs/Float64), ``joint_commands`` (sensor_msgs/JointState, topic_based_ros2_control: the
   position of joint ``<joint_prefix>crank_length`` is a crank-length command [m])
-* publications: ``joint_states`` (sensor_msgs/JointState: J1..J4 and the actuator joint
-  ``crank_length``), ``state`` (the same sample, latched: transient local, keep last 1),
-  ``clutch_engaged`` (std_msgs/Bool, latched), ``/clock``, ``/diagnostics`` (~1 Hz)
+* publications: ``joint_states`` (sensor_msgs/JointState: J1..J4 — with N ≥ 2 paths one rocker
+  per path, ``rocker_1 … rocker_N`` — and the actuator joint ``crank_length``), ``state`` (the
+  same sample, latched: transient local, keep last 1), ``clutch_engaged`` (std_msgs/Bool, any
+  clutch engaged, latched), ``clutch_states`` (N ≥ 2: sensor_msgs/JointState, each clutch),
+  ``/clock``, ``/diagnostics`` (~1 Hz)
 * services: ``~/reset`` (Trigger), ``~/pause`` (SetBool), ``~/step`` (Trigger, ``step_periods``)
 * parameters: every parameter of ``cvt_ros.parameters.SPECS`` under its dotted name
 
@@ -15,8 +17,6 @@ Threads: the executor runs the callbacks, which only check and queue; the loop t
 Device and publishes.
 """
 import gc
-import math
-import operator
 import sys
 import threading
 
@@ -53,14 +53,7 @@ from .subscription_wait import TAKE_LIMIT, RCLError, SubscriptionWait, WaitedApa
 
 CRANK = 'linkage.crank_length'
 GEOMETRY = {'linkage.rocker_length', 'linkage.coupler_length', 'linkage.pivot_distance'}
-JOINTS = interface.DEVICE_JOINTS   # J1..J4 (crank ... output_shaft) and the actuator crank_length
-_A = COL['crank_length']
-# one gather per sample: position φ1..φ4, a; velocity ω1..ω4, (ȧ); effort (4 torques), (NaN)
-_FIELDS = ([COL[c] for c in interface.POSITION_COLUMNS] + [_A]
-           + [COL[c] for c in interface.VELOCITY_COLUMNS] + [_A]
-           + [COL[c] for c in interface.EFFORT_COLUMNS] + [_A])
-_GATHER = operator.itemgetter(*_FIELDS)   # (on the row's list: cheaper than numpy's take)
-_RATE_SLOT, _FORCE_SLOT = 9, 14
+JOINTS = interface.DEVICE_JOINTS   # one path: J1..J4 (crank ... output_shaft), crank_length
 
 
 def _float64(data, topic):
@@ -122,8 +115,8 @@ class CvtSimNode(Node):
         self.add_post_set_parameters_callback(self.apply_parameters_callback)
 
         self._publish_clock = bool(values['publish_clock'])
-        self._joint_names = [values['joint_prefix'] + j for j in JOINTS]
-        self._actuator_joint = self._joint_names[-1]   # its position in joint_commands
+        self.n_paths = int(values['paths.count'])   # (the machine's build: never changes)
+        self._set_joint_names(values['joint_prefix'])
         self._warm_up(values)
         self.device = Device(values, 1.0 / values['publish_rate'], timing=True)
         # the last accepted commands (executor thread; the loop applies them a step later)
@@ -134,7 +127,6 @@ class CvtSimNode(Node):
         self._reporter = Reporter()
         self._recorder = None
         self._record_lock = threading.Lock()
-        self._encoder = interface.JointStateEncoder(self._joint_names)
         self._last_seq = {}         # command topic -> last publication sequence number
         self._published_ns = 0      # simulation time of the last published sample [ns]
 
@@ -146,6 +138,10 @@ class CvtSimNode(Node):
             Bool, interface.CLUTCH_ENGAGED, interface.clutch_qos())
         self.clock_publisher = self.create_publisher(
             ClockMsg, interface.CLOCK, interface.clock_qos())
+        # N ≥ 2 paths: each clutch (one path has clutch_engaged alone, as it always had)
+        self.clutch_states_publisher = self.create_publisher(
+            JointState, interface.CLUTCH_STATES, interface.qos_profile('clutch_states')
+        ) if self.n_paths > 1 else None
         self.diagnostics_publisher = self.create_publisher(
             DiagnosticArray, interface.DIAGNOSTICS, interface.diagnostics_qos())
         self._sample_handles = (self.joint_states_publisher.handle, self.state_publisher.handle,
@@ -183,6 +179,8 @@ class CvtSimNode(Node):
             'load_torque_cmd': self.load_torque_cmd_subscription.topic_name,
             'joint_commands': self.joint_commands_subscription.topic_name,
         }
+        if self.clutch_states_publisher is not None:
+            self._topic['clutch_states'] = self.clutch_states_publisher.topic_name
         if values['record.path']:
             self._open_recorder(values['record.path'])
         self.get_logger().info(
@@ -190,6 +188,12 @@ class CvtSimNode(Node):
             f"of simulation time, solver {values['solver.method']}, crank length "
             f"{values['linkage.crank_length']:g} m (Grashof bound {self.device.bound:g} m), "
             f"load torque {values['load.torque']:g} N*m")
+
+    def _set_joint_names(self, prefix):
+        """The joint names (parameter joint_prefix) of joint_states and clutch_states."""
+        self._layout = interface.SampleLayout(self.n_paths, prefix)
+        self._joint_names = list(self._layout.names)
+        self._actuator_joint = self._joint_names[-1]   # its position in joint_commands
 
     # ------------------------------------------------------------------ lifecycle
     def start(self):
@@ -301,9 +305,7 @@ class CvtSimNode(Node):
         if 'publish_clock' in node:
             self._publish_clock = bool(new['publish_clock'])
         if 'joint_prefix' in node:
-            self._joint_names = [new['joint_prefix'] + j for j in JOINTS]
-            self._actuator_joint = self._joint_names[-1]
-            self._encoder = interface.JointStateEncoder(self._joint_names)
+            self._set_joint_names(new['joint_prefix'])
         if 'record.path' in node and new['record.path'] != recording:   # a reload: not again
             self._close_recorder()
             if new['record.path']:
@@ -445,19 +447,44 @@ class CvtSimNode(Node):
 
     def publish_present(self, period):
         """The present state: latched clutch state, then a sample (start-up, reset); both stay
-        latched for late joiners (clutch_engaged, state)."""
+        latched for late joiners (clutch_engaged, state). N ≥ 2: the engaged set first, as a
+        switch message of clutch_states."""
+        ns = interface.stamp_ns(period.t)
+        if self.n_paths > 1:
+            self._publish_clutch_set(self.device.engaged_set, ns)
         msg = Bool(data=bool(period.row[COL['engaged']]))
-        self._hand_to_recorder(self._topic['clutch_engaged'], msg,
-                               interface.stamp_ns(period.t))
+        self._hand_to_recorder(self._topic['clutch_engaged'], msg, ns)
         self._publish(self.clutch_engaged_publisher, msg)
         self.publish_sample(period.row, period.crank_rate)
 
     def publish_switch(self, event):
         """One clutch switch, at its own simulation time (Bool has no stamp: the switch time is
-        in diagnostics as last_switch_time and goes to the recorder with this message)."""
+        in diagnostics as last_switch_time and goes to the recorder with this message). N ≥ 2:
+        ``event`` is a switching instant (solver.clutch_sets.SetChange): the engaged set on
+        clutch_states, stamped with it; clutch_engaged only where "any" changed (a handoff
+        between paths is no switch of it)."""
+        ns = interface.stamp_ns(event.t)
+        if self.n_paths > 1:
+            self._publish_clutch_set(event.after, ns)
+            if not event.any_changed:
+                return
         msg = Bool(data=bool(event.engaged))
-        self._hand_to_recorder(self._topic['clutch_engaged'], msg, interface.stamp_ns(event.t))
+        self._hand_to_recorder(self._topic['clutch_engaged'], msg, ns)
         self._publish(self.clutch_engaged_publisher, msg)
+
+    def _publish_clutch_set(self, mask, ns):
+        """clutch_states of a switch: the engaged set ``mask`` (positions only) at ``ns``."""
+        data = self._layout.clutch_switch(mask, ns)
+        self._hand_to_recorder(self._topic['clutch_states'], data, ns)
+        self._publish_raw(self.clutch_states_publisher, data)
+
+    def _publish_raw(self, publisher, data):
+        try:
+            with publisher.handle:
+                publisher.handle.publish_raw(data)
+        except (InvalidHandle, RCLError) as exc:
+            if not self._shutting_down(exc):
+                raise
 
     def _publish(self, publisher, msg):
         """Publish, unless the node is shutting down. What was computed is recorded before it is
@@ -477,12 +504,9 @@ class CvtSimNode(Node):
         """state, joint_states and /clock of one period's end (``row``: its sample, the
         actuator's rate [m/s]), serialized once (CDR bytes), published through the publishers'
         handles (rclpy's publish() adds a type check per message and nothing else)."""
-        values = list(_GATHER(row.tolist()))
-        ns = round(float(row[0]) * 1e9)   # = interface.stamp_ns(row[0])
-        sec, nanosec = divmod(ns, 1_000_000_000)
-        values[_RATE_SLOT] = crank_rate
-        values[_FORCE_SLOT] = math.nan   # the actuator's force is not modelled
-        data = self._encoder.encode(sec, nanosec, values)
+        values = row.tolist()             # (once, for joint_states and clutch_states)
+        ns = round(values[0] * 1e9)       # = interface.stamp_ns(row[0])
+        data = self._layout.joint_states(values, crank_rate, ns)
         joint_states, state, clock_handle = self._sample_handles
         clock = None
         try:
@@ -501,6 +525,10 @@ class CvtSimNode(Node):
             # switches are (a recording ends on a whole period)
             if not self._shutting_down(exc):
                 raise
+        if self.n_paths > 1:   # (after the sample: a lockstep controller waits for that)
+            clutches = self._layout.clutch_states(values, ns)
+            self._publish_raw(self.clutch_states_publisher, clutches)
+            self._hand_to_recorder(self._topic['clutch_states'], clutches, ns)
         if self._recorder is not None:
             self._hand_to_recorder(self._topic['joint_states'], data, ns)
             if self._publish_clock:
@@ -529,7 +557,8 @@ class CvtSimNode(Node):
             (self._topic['crank_length_cmd'], Float64, interface.command_qos()),
             (self._topic['load_torque_cmd'], Float64, interface.command_qos()),
             (self._topic['joint_commands'], JointState, interface.qos_profile('joint_commands')),
-        ]
+        ] + ([(self._topic['clutch_states'], JointState, interface.qos_profile('clutch_states'))]
+             if self.n_paths > 1 else [])
 
     def _open_recorder(self, path):
         """Record everything published and received to ``path`` (parameter record.path) at
@@ -541,7 +570,7 @@ class CvtSimNode(Node):
         logger = self.get_logger()
         try:
             self._recorder = SimulationRecorder(
-                path, topic_names=dict(self._topic), joint_names=self._joint_names[:4],
+                path, topic_names=dict(self._topic), joint_names=self._joint_names[:-1],
                 parameters=self.device.values, scene=self._scene_name, source='cvt_node',
                 on_error=lambda exc: logger.error(f"recording to {path} stopped: {exc}; "
                                                   f"the simulation goes on"))

@@ -124,6 +124,15 @@ def paths_linkage(phi1, w1, a, ad, add, P, aux):
     return su2, suk
 
 
+@inline_kernel
+def path_speed(k, t, y, P, ACT):
+    """Path k's rocker speed v_k = u_k·ω1 + g_a,k·a' [rad/s] at (t, y), from the closed form."""
+    a, ad, _ = crank_actuator(t, ACT)
+    _, _, u, _, ga, _, _ = kinematics(y[L.PHI1] + P[P_OFFSET + k], a, P[L.P_B], P[L.P_D],
+                                      P[L.P_H], P[L.P_SIGMA])
+    return u * y[L.OMEGA1] + ga * ad
+
+
 @kernel
 def contact_solve(mode, n, F1, J1e, Fn, Jn, speed_source, aux, rhs):
     """The engaged-set equations (module text) for the set ``mode`` (at most two paths):

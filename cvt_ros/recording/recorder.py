@@ -63,12 +63,6 @@ PARAMETER_CHANGE_NAME = 'cvt_ros.parameter_change'
 SELF_CHECK_NAME = 'cvt_ros.solver_check'
 #: Data is on disk (in complete chunks) at most this long after it was written [s].
 FLUSH_INTERVAL = 0.5
-#: Sample-row columns behind joint_states' position, velocity and effort, joint by joint, the
-#: actuator (crank length) fifth in each; its rate and force come from elsewhere.
-_SAMPLE_FIELDS = ([COL[c] for c in I.POSITION_COLUMNS] + [COL['crank_length']]
-                  + [COL[c] for c in I.VELOCITY_COLUMNS] + [COL['crank_length']]
-                  + [COL[c] for c in I.EFFORT_COLUMNS] + [COL['crank_length']])
-_RATE_SLOT, _FORCE_SLOT = 9, 14
 
 
 def _ensure_ament_prefix() -> None:
@@ -98,11 +92,13 @@ class SimulationRecorder:
     ``topic_names``: interface key → fully qualified topic name, overriding ``namespace`` (the
     node passes its resolved names, remappings included). Keys are those of
     :data:`cvt_ros.interface.TOPICS`.
-    ``joint_names``: the four joint names J1..J4 in joint_states (the node's ``joint_prefix``
-    applied); :meth:`record_sample` adds the actuator joint (``crank_length`` with the same
-    prefix), as the node publishes it.
+    ``joint_names``: the joint names J1..J4 in joint_states (the node's ``joint_prefix``
+    applied; with N ≥ 2 paths one rocker per path, ``interface.joint_names``);
+    :meth:`record_sample` adds the actuator joint (``crank_length`` with the same prefix), as
+    the node publishes it.
     ``parameters``: validated scene values (dotted name → value), stored in the ``cvt_ros``
-    metadata record; ``scene``: the scene's name or path; ``source``: who recorded.
+    metadata record; their ``paths.count`` (default 1) is the machine's N: N ≥ 2 registers
+    ``clutch_states`` too; ``scene``: the scene's name or path; ``source``: who recorded.
     ``extra_topics``: more (topic, type, qos) to register, for :meth:`write`.
     ``on_error``: called once with the :class:`RecordingError` that stopped the recording.
     ``overwrite``, ``chunk_size``, ``flush_interval``: see :class:`BagWriter`.
@@ -120,16 +116,20 @@ class SimulationRecorder:
                  overwrite: bool = False, chunk_size: int = DEFAULT_CHUNK_SIZE,
                  flush_interval: float | None = FLUSH_INTERVAL):
         _ensure_ament_prefix()
-        names = I.resolved_topics(namespace)
+        self.n_paths = n = int((parameters or {}).get('paths.count', 1))
+        names = I.resolved_topics(namespace, n)
         names.update(topic_names or {})
         self.topics: dict[str, str] = names
         self.joint_names = tuple(joint_names)
-        if len(self.joint_names) != 4:
-            raise ValueError(f'joint_names must name 4 joints, got {self.joint_names!r}')
+        if len(self.joint_names) == 4 and n > 1 and tuple(joint_names) == I.JOINTS:
+            self.joint_names = I.joint_names(n)   # (the default names, for N paths)
         prefix = self.joint_names[0][:-len(I.JOINTS[0])] \
             if self.joint_names[0].endswith(I.JOINTS[0]) else ''
-        self._sample_names = (*self.joint_names, prefix + I.ACTUATOR_JOINT)
-        self._encoder = I.JointStateEncoder(self._sample_names)
+        if self.joint_names != I.joint_names(n, prefix):
+            raise ValueError(f'joint_names must name the {n + 3} joints of {n} path(s), '
+                             f'{", ".join(I.joint_names(n, prefix))}; got {self.joint_names!r}')
+        self._layout = I.SampleLayout(n, prefix)
+        self._sample_names = self._layout.names
         self._on_error = on_error
         self._lock = threading.Lock()
         self._error: Exception | None = None
@@ -145,7 +145,7 @@ class SimulationRecorder:
         self._writer = BagWriter(path, chunk_size=chunk_size, flush_interval=flush_interval,
                                  overwrite=overwrite, clamp_log_time=True, custom_data=custom)
         try:
-            for key, spec in I.TOPICS.items():
+            for key, spec in I.topics_for(n).items():
                 self._writer.add_topic(names[key], spec.type_name, qos=I.QOS[key])
             for topic, type_name, qos in extra_topics:
                 self._writer.add_topic(topic, type_name, qos=qos)
@@ -246,15 +246,15 @@ class SimulationRecorder:
 
     # ------------------------------------------------------------------ typed recording
     def record_sample(self, row: Any, crank_rate: float = math.nan) -> bool:
-        """A sample row (``cvt_ros.solver.output.COLUMNS``): joint_states stamped with its
-        time, J1..J4 and the actuator joint (position = the actual crank length, velocity =
-        ``crank_rate`` [m/s], effort NaN: not modelled), the node's layout; no /clock (see
-        :meth:`record_clock`)."""
+        """A sample row (``cvt_ros.solver.output.path_columns(n_paths)``): joint_states
+        stamped with its time, J1..J4 and the actuator joint (position = the actual crank length,
+        velocity = ``crank_rate`` [m/s], effort NaN: not modelled), the node's layout, and with
+        N ≥ 2 paths clutch_states; no /clock (see :meth:`record_clock`)."""
         ns = I.stamp_ns(row[0])
-        values = row.take(_SAMPLE_FIELDS).tolist() if hasattr(row, 'take') \
-            else [float(row[i]) for i in _SAMPLE_FIELDS]
-        values[_RATE_SLOT], values[_FORCE_SLOT] = crank_rate, math.nan
-        data = self._encoder.encode(*divmod(ns, 1_000_000_000), values)
+        data = self._layout.joint_states(row, crank_rate, ns)
+        if self.n_paths > 1 and not self._write(self.topics['clutch_states'],
+                                                self._layout.clutch_states(row, ns), ns):
+            return False
         return self._write(self.topics['joint_states'], data, ns, True)
 
     def record_clock(self, t: float) -> bool:
@@ -267,10 +267,23 @@ class SimulationRecorder:
         return self._write(self.topics['clutch_engaged'], I.bool_cdr(engaged), I.stamp_ns(t))
 
     def record_switch(self, switch: Any) -> bool:
-        """A ``ClutchSwitch`` at its exact event time; grazing contacts are not switches."""
+        """A ``ClutchSwitch`` at its exact event time; grazing contacts are not switches. N ≥ 2
+        paths: a switching instant (``solver.clutch_sets.SetChange``): the engaged set on
+        clutch_states, and clutch_engaged where "any clutch engaged" changed."""
         if getattr(switch, 'kind', '') == 'graze':
             return False
+        if self.n_paths > 1:
+            ok = self.record_clutch_set(switch.after, switch.t)
+            if ok and switch.any_changed:
+                ok = self.record_clutch_state(switch.engaged, switch.t)
+            return ok
         return self.record_clutch_state(switch.engaged, switch.t)
+
+    def record_clutch_set(self, mask: int, t: float) -> bool:
+        """clutch_states (N ≥ 2) of a switch at ``t`` [s]: the engaged set ``mask`` (bit k − 1
+        = path k), positions only."""
+        ns = I.stamp_ns(t)
+        return self._write(self.topics['clutch_states'], self._layout.clutch_switch(mask, ns), ns)
 
     def record_command(self, topic: str, value: Any, t_receive: float) -> bool:
         """A command received at simulation time ``t_receive`` [s]. ``topic``: interface key
@@ -332,12 +345,24 @@ def record_run(recorder: SimulationRecorder, result: Any, *, clock: bool = True)
         return 0
     import numpy as np
 
+    n = recorder.n_paths
+    count = 0
+    if n > 1:   # one switching instant at a time, from the engaged set at the first sample
+        from ..solver.clutch_sets import path_masks, set_changes
+        engaged = list(result.columns).index('engaged_1')
+        mask = path_masks(samples[0, engaged:engaged + n])
+        if not recorder.record_clutch_set(mask, float(samples[0, COL['t']])):
+            return 0
+        count = 1
+        switches = set_changes(switches, mask)[0]
+
     # the actuator moves at a constant rate between its corners: differences of the samples
     a, t = samples[:, COL['crank_length']], samples[:, COL['t']]
     rates = np.gradient(a, t) if len(samples) > 1 else np.zeros(len(samples))
 
     t0 = float(samples[0, COL['t']])
-    count = int(recorder.record_clutch_state(bool(samples[0, COL['engaged']]), t0))
+    count += int(recorder.record_clutch_state(bool(samples[0, COL['engaged']]), t0))
+    per_sample = 2 if n > 1 else 1   # joint_states (and clutch_states)
     k = 0
     for row, rate in zip(samples, rates, strict=True):
         ns = I.stamp_ns(row[0])
@@ -346,7 +371,7 @@ def record_run(recorder: SimulationRecorder, result: Any, *, clock: bool = True)
             k += 1
         if not recorder.record_sample(row, float(rate)):
             return count
-        count += 1
+        count += per_sample
         if clock:
             count += recorder.record_clock(row[0])
     for switch in switches[k:]:  # after the last sample (duration not a multiple of the grid)

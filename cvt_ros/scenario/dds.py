@@ -11,7 +11,8 @@ The protocol (docs/lockstep.md):
   for its command publishers to be matched — nothing is sent into the void;
 * each period: the harness publishes one crank_length_cmd (the controller's, or the one in force
   again: the device does not re-plan an unchanged command) and waits for the sample of the next
-  period on ``state``; clutch switches arrive on ``clutch_engaged`` in between;
+  period on ``state``; clutch switches arrive on ``clutch_engaged`` in between (N ≥ 2 paths:
+  on ``clutch_states``, each clutch's, stamped with the switch's own time);
 * the load schedule is handed to the node up front (parameter ``disturbance.file``: a CSV of
   the periods where the load changes), and the node applies each change at the start of its
   period on the k·period grid — a load command on its own topic would race the crank command
@@ -47,10 +48,12 @@ import yaml
 from ..device import domains
 from ..interface import (
     ACTUATOR_JOINT,
+    CLUTCH_STATES,
     STATE,
     float64_cdr,
     float64_value,
     joint_state_stamp_ns,
+    parse_joint_state_cdr,
 )
 from ..solver.output import COL, N_COLUMNS
 from ..solver.simulator import SimulationError
@@ -121,13 +124,65 @@ class SampleRows:
         self.row = np.frombuffer(self._bytes, dtype=np.float64)
         self._pack = struct.Struct(f'<{_FILLED}d').pack_into
 
-    def fill(self, ns, position, velocity, effort):
+    def fill(self, ns, position, velocity, effort, engaged_set=0):
         phi1, phi2, phi3, phi4 = self._joints(position)
         motor, clutch, shaft, load = self._joints(effort)
         crank = math.nan if self._actuator is None else position[self._actuator]
         self._pack(self._bytes, 0, ns * 1e-9, phi1, phi2, phi3, phi4, *self._joints(velocity),
                    1.0 if clutch > 0.0 else 0.0, phi3 - phi4, clutch, crank, load, motor, shaft)
         return self.row
+
+
+class PathSampleRows(SampleRows):
+    """N ≥ 2 paths: rows of ``output.path_columns(N)`` from joint_states' rockers (``rockers``:
+    their indices) and the engaged set the clutch_states messages gave (bit k − 1 = path k):
+    clutch_torque = the rockers' efforts summed in path order (as the core sums them), engaged
+    = any clutch, engaged_k its bit."""
+
+    def __init__(self, order, actuator, rockers):
+        super().__init__(order, actuator)
+        n = self.n_paths = len(rockers)
+        self._rockers = operator.itemgetter(*rockers)
+        self._bytes = bytearray(struct.pack(f'<{N_COLUMNS + 4 * n}d',
+                                            *[math.nan] * (N_COLUMNS + 4 * n)))
+        self.row = np.frombuffer(self._bytes, dtype=np.float64)
+
+    def fill(self, ns, position, velocity, effort, engaged_set=0):
+        super().fill(ns, position, velocity, effort)
+        n, row = self.n_paths, self.row
+        torques = self._rockers(effort)
+        total = 0.0
+        for torque in torques:
+            total += torque
+        row[COL['clutch_torque']] = total
+        row[COL['engaged']] = 1.0 if engaged_set else 0.0
+        row[N_COLUMNS:N_COLUMNS + n] = self._rockers(position)
+        row[N_COLUMNS + n:N_COLUMNS + 2 * n] = self._rockers(velocity)
+        row[N_COLUMNS + 2 * n:N_COLUMNS + 3 * n] = [engaged_set >> k & 1 for k in range(n)]
+        row[N_COLUMNS + 3 * n:] = torques
+        return self.row
+
+
+class ClutchSets:
+    """N ≥ 2 paths: clutch_states messages (CDR) → each clutch's switches (t, engaged, path)
+    where its state changes from one message to the next, at the later one's stamp (a switch
+    message carries the switch's own time); ``mask``: the engaged set now."""
+
+    def __init__(self, n_paths):
+        self.n_paths = n_paths
+        self.mask = None
+
+    def take(self, data):
+        ns, _, _, position, _, _ = parse_joint_state_cdr(data)
+        if len(position) != self.n_paths:
+            raise DdsError(f"a clutch_states message with {len(position)} clutches, not "
+                           f"{self.n_paths}")
+        mask = sum(1 << k for k, v in enumerate(position) if v == 1.0)
+        before, self.mask = self.mask, mask
+        if before is None:
+            return []
+        return [(ns * 1e-9, bool(mask >> k & 1), k + 1) for k in range(self.n_paths)
+                if (mask ^ before) >> k & 1]
 
 
 class DdsPlant:
@@ -141,6 +196,8 @@ class DdsPlant:
     def __init__(self, scenario, controller_cmd=None, realtime=None, domain=None, log=None):
         self.period = scenario.control_period
         self.scenario = scenario
+        self.n_paths = int(scenario.values.get('paths.count', 1))
+        self.clutch_sets = ClutchSets(self.n_paths) if self.n_paths > 1 else None
         self.external = controller_cmd
         self.realtime = realtime
         self._own_lease = domain is None
@@ -200,7 +257,7 @@ class DdsPlant:
         rclpy.init(context=self.context, domain_id=self.lease.domain)
         self.node = rclpy.create_node('cvt_scenario_harness', context=self.context)
         self.samples = []          # state messages not yet taken (CDR bytes)
-        self.switch_states = []    # clutch_engaged values not yet taken
+        self.switch_states = []    # clutch_engaged values (N ≥ 2: clutch_states CDR) not taken
         # raw: the samples' bytes, read by one struct call (rclpy's message objects cost ~12 µs
         # each, a good part of what a lockstep round trip spends in this process)
         self._decoder = interface.JointStateDecoder()
@@ -209,9 +266,17 @@ class DdsPlant:
         from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
         every = QoSProfile(history=HistoryPolicy.KEEP_ALL, reliability=ReliabilityPolicy.RELIABLE,
                            durability=DurabilityPolicy.VOLATILE)   # each message is a switch
-        clutch = self.node.create_subscription(
-            Bool, interface.CLUTCH_ENGAGED, lambda m: self.switch_states.append(bool(m.data)),
-            every)
+        if self.n_paths > 1:   # each clutch, its switches stamped (clutch_engaged is any one);
+            # latched: the t = 0 set, whenever this subscription matched
+            latched = QoSProfile(history=HistoryPolicy.KEEP_ALL,
+                                 reliability=ReliabilityPolicy.RELIABLE,
+                                 durability=DurabilityPolicy.TRANSIENT_LOCAL)
+            clutch = self.node.create_subscription(JointState, CLUTCH_STATES,
+                                                   self.switch_states.append, latched, raw=True)
+        else:
+            clutch = self.node.create_subscription(
+                Bool, interface.CLUTCH_ENGAGED,
+                lambda m: self.switch_states.append(bool(m.data)), every)
         # waiting for a sample: on these two alone, not through an executor pass (a lockstep
         # period is one round trip; the executor's pass would be most of it). Switches first:
         # those published before a sample are taken with it.
@@ -277,6 +342,14 @@ class DdsPlant:
             raise DdsError(f"a state message that is not a JointState: {exc}") from None
         if self.rows is None:
             self.rows = self._sample_rows()
+        if self.clutch_sets is not None:
+            switches = []
+            for data in self.switch_states:
+                switches += self.clutch_sets.take(data)
+            self.switch_states.clear()
+            self._last_ns = ns
+            return self.rows.fill(ns, position, velocity, effort, self.clutch_sets.mask or 0), \
+                switches
         row = self.rows.fill(ns, position, velocity, effort)
         switches = []
         if self.switch_states:
@@ -290,18 +363,28 @@ class DdsPlant:
 
     def _sample_rows(self):
         """The rows of this node's samples (their joint layout, from the first one)."""
-        from ..interface import joint_order
+        from ..interface import joint_order, rocker_order
         names = self._decoder.names
         order = joint_order(names)
         if order is None:
             raise DdsError(f"state without the device's joints: {names}")
         hits = [i for i, n in enumerate(names) if n.endswith(ACTUATOR_JOINT)]
-        return SampleRows(order, hits[0] if len(hits) == 1 else None)
+        actuator = hits[0] if len(hits) == 1 else None
+        if self.n_paths > 1:
+            rockers = rocker_order(names)
+            if len(rockers) != self.n_paths:
+                raise DdsError(f"state with {len(rockers)} rockers for {self.n_paths} paths: "
+                               f"{names}")
+            return PathSampleRows(order, actuator, rockers)
+        return SampleRows(order, actuator)
 
     # ------------------------------------------------------------------ plant protocol
     def start(self):
         self._spin_until(lambda: self.crank_publisher.get_subscription_count() > 0,
                          START_TIMEOUT_S, "cvt_node's command subscription")
+        if self.clutch_sets is not None:   # N ≥ 2: the t = 0 engaged set (latched) first
+            self._spin_until(lambda: self.switch_states, START_TIMEOUT_S,
+                             "cvt_node's clutch_states", samples_only=True)
         row, _ = self._next_sample()
         self._engaged = bool(row[COL['engaged']])    # switches: messages that change it
         self._command = float(row[COL['crank_length']])
@@ -361,7 +444,10 @@ class DdsPlant:
         self._stop(self.proc)
         end_ns = round(t_end * 1e9)
         engaged, last_diagnostics = None, None
-        topics = ['/clutch_engaged', '/joint_states', '/crank_length_cmd', '/diagnostics']
+        # N ≥ 2 paths: each clutch's switches, stamped, from clutch_states
+        sets = ClutchSets(self.n_paths) if self.n_paths > 1 else None
+        topics = ['/clutch_states' if sets else '/clutch_engaged', '/joint_states',
+                  '/crank_length_cmd', '/diagnostics']
         for m in read_messages(self.recording, topics, strict=False):
             if m.log_time_ns > end_ns:
                 break
@@ -374,6 +460,10 @@ class DdsPlant:
                     last_diagnostics = m.data
                     yield 'diagnostics', (m.log_time_ns * 1e-9, m.data)
                 continue
+            if m.topic == '/clutch_states':   # (t, engaged, path), each clutch's
+                for switch in sets.take(m.data):
+                    yield 'switch', switch
+                continue
             if m.topic == '/clutch_engaged':
                 state = m.data[-1] == 1
                 if engaged is not None and state != engaged:   # (repeats are not switches)
@@ -383,7 +473,7 @@ class DdsPlant:
             sample = self._decoder.decode(m.data)
             if self.rows is None:   # (the joint layout, if no sample was seen)
                 self.rows = self._sample_rows()
-            yield 'sample', self.rows.fill(*sample)
+            yield 'sample', self.rows.fill(*sample, *((sets.mask or 0,) if sets else ()))
         if self.realtime and last_diagnostics is not None:
             self.node_timing = node_timing(last_diagnostics)
 

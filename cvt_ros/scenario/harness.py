@@ -167,6 +167,7 @@ def _loop(scenario, controller, plant, controller_name, progress, stream):
     # as the tuple it is (Measurement's own __new__ is one more Python call per period)
     observe = sensors.observe if scenario.sensors.enabled else None
     row = plant.start()            # (a node process starts here: not in the wall time)
+    # (N ≥ 2 paths: the rows carry each path's columns after N_COLUMNS, output.path_columns)
     rows, commands = stream.start(row)
     block, base, switches = stream.block, 0, []
     wall0 = time.perf_counter()

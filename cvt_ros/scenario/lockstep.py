@@ -4,6 +4,7 @@ pytest and for fast iterations. Same calls in the same order as the offline back
 traces are the same to the bit (test_scenario_backends checks it)."""
 from ..device.core import CommandError, Device
 from ..solver.simulator import SimulationError
+from .plants import plant_switches
 
 
 class LockstepPlant:
@@ -32,7 +33,10 @@ class LockstepPlant:
         period = self.device.advance()
         if period is None:
             raise SimulationError(self.device.fault)
-        return period.row, [(s.t, s.engaged) for s in period.events]
+        events = period.events
+        if self.device.n_paths > 1:   # (the device's switching instants: their switches)
+            events = [s for change in events for s in change.switches]
+        return period.row, plant_switches(events, self.device.n_paths)
 
     def self_check(self):
         """The solver's self-check (Simulator.self_check: possibly missed clutch events)."""

@@ -4,8 +4,9 @@ Every back end offers the same five calls, so the harness loop (harness.py) is o
 
 * ``start()`` → the sample row at t = 0 (``cvt_ros.solver.output.COLUMNS``);
 * ``set_load_torque(m)`` and ``command_crank_length(a)``: take effect at the next period;
-* ``step()`` → (sample row at the end of the period, clutch switches inside it as (t, engaged));
-  the row may be the plant's own buffer, rewritten by the next ``step()``;
+* ``step()`` → (sample row at the end of the period, clutch switches inside it as (t, engaged);
+  N ≥ 2 paths: (t, engaged, path), each clutch's); the row may be the plant's own buffer,
+  rewritten by the next ``step()``;
 * ``close()``.
 
 ``OfflinePlant`` drives the core's Simulator directly: commands, then ``advance(period)`` and
@@ -21,6 +22,14 @@ def plant_values(scenario):
     """The scene values every back end builds its device from: the scenario's scene with the load
     schedule's initial value as the load torque."""
     return dict(scenario.values, **{'load.torque': scenario.load.initial})
+
+
+def plant_switches(switches, n_paths):
+    """The core's ClutchSwitch list as a plant reports it: (t, engaged) for one path, (t,
+    engaged, path) for N ≥ 2 (grazing contacts left out)."""
+    if n_paths > 1:
+        return [(s.t, s.engaged, s.path) for s in switches if s.kind != 'graze']
+    return [(s.t, s.engaged) for s in switches if s.kind != 'graze']
 
 
 class OfflinePlant:
@@ -46,7 +55,7 @@ class OfflinePlant:
         switches = self.stepper.switches
         if not switches:
             return row, NO_SWITCHES
-        return row, [(s.t, s.engaged) for s in switches if s.kind != 'graze']
+        return row, plant_switches(switches, self.sim.n_paths)
 
     def self_check(self):
         """The solver's self-check (Simulator.self_check: possibly missed clutch events)."""

@@ -14,10 +14,15 @@ from ..analysis.bag import SETPOINT_TOPIC
 from ..interface import QOS, float64_cdr, stamp_ns
 from ..recording.errors import RecordingError
 from ..recording.recorder import SimulationRecorder, check_target
-from ..solver.output import COL
+from ..solver.clutch_sets import path_masks, set_changes
+from ..solver.output import COL, N_COLUMNS
 
 SETPOINT_TYPE = 'std_msgs/msg/Float64'
 SETPOINT_QOS = dict(QOS['crank_length_cmd'])
+
+
+def _time(switch):
+    return switch[0] if isinstance(switch, tuple) else switch.t
 
 
 class ScenarioRecording:
@@ -36,6 +41,7 @@ class ScenarioRecording:
         self.count = 0
         self.stopped = False
         self.setpoint = self.load = None   # the last sample's (a change is recorded)
+        self.mask = None                   # N ≥ 2 paths: the engaged set so far
 
     @property
     def error(self):
@@ -43,19 +49,28 @@ class ScenarioRecording:
 
     def block(self, samples, setpoint, load, commands, switches, diagnostics):
         """Samples (rows) with the schedules and the command given at each (NaN: none), and the
-        switches ((t, engaged)) and /diagnostics ((t, CDR bytes)) up to the last sample."""
+        switches ((t, engaged); N ≥ 2 paths (t, engaged, path)) and /diagnostics ((t, CDR
+        bytes)) up to the last sample."""
         if self.stopped:
             return
         recorder = self.recorder
         count, j, d = 0, 0, 0
+        n = recorder.n_paths
         if self.setpoint is None:
-            count += recorder.record_clutch_state(bool(samples[0, COL['engaged']]),
-                                                  samples[0, COL['t']])
+            t0 = samples[0, COL['t']]
+            if n > 1:   # one switching instant at a time (recorder.record_switch), from the
+                # first set
+                self.mask = path_masks(samples[0, N_COLUMNS + 2 * n:N_COLUMNS + 3 * n])
+                count += recorder.record_clutch_set(self.mask, t0)
+            count += recorder.record_clutch_state(bool(samples[0, COL['engaged']]), t0)
+        if n > 1:
+            switches, self.mask = set_changes(switches, self.mask)
         given = np.isfinite(commands)
         for k, row in enumerate(samples):
             ns = stamp_ns(row[0])
-            while j < len(switches) and stamp_ns(switches[j][0]) <= ns:
-                count += recorder.record_clutch_state(switches[j][1], switches[j][0])
+            while j < len(switches) and stamp_ns(_time(switches[j])) <= ns:
+                count += (recorder.record_switch(switches[j]) if n > 1
+                          else recorder.record_clutch_state(switches[j][1], switches[j][0]))
                 j += 1
             while d < len(diagnostics) and stamp_ns(diagnostics[d][0]) <= ns:
                 count += recorder.write(recorder.topics['diagnostics'], diagnostics[d][1],
@@ -64,7 +79,7 @@ class ScenarioRecording:
             if not recorder.record_sample(row):
                 self.stopped = True
                 break
-            count += 1 + recorder.record_clock(row[0])
+            count += 1 + (n > 1) + recorder.record_clock(row[0])
             if setpoint[k] != self.setpoint:
                 count += recorder.write(SETPOINT_TOPIC, float64_cdr(setpoint[k]), ns)
                 self.setpoint = setpoint[k]

@@ -13,8 +13,8 @@ from functools import cached_property
 import numpy as np
 
 from ..analysis.stepinfo import METRICS, step_metrics, summarize_steps
-from ..analysis.trace import Trace
-from ..solver.output import COL
+from ..analysis.trace import trace_of_samples
+from ..solver.output import COL, N_COLUMNS, path_columns
 
 
 @dataclass(eq=False)
@@ -22,12 +22,14 @@ class ScenarioRun:
     """``samples``: (n+1, COLUMNS) plant samples at t_k = k·period (the true state, not the
     sensed one); ``setpoint``, ``load``: the schedules at t_k; ``commands``: the crank-length
     command of period k after the limiter (NaN: the controller kept the last one); ``switches``:
-    (t, engaged) clutch switches. A run longer than KEEP_PERIODS periods (scenario/stream.py)
-    keeps every ``sample_stride``-th sample only (t_k, k a multiple of the stride), the schedules
-    there, the command *in force* there (held: no NaN after the first), and no switches
-    (``switch_count`` counts them); its metrics, plot and ``--mcap`` recording are of every
-    period all the same. ``error``: why the run stopped early (None: it ran to the end);
-    ``exception``: what the controller raised, with its traceback (None otherwise); dds back end:
+    (t, engaged) clutch switches (N ≥ 2 paths: (t, engaged, path), each clutch's; the samples
+    then carry each path's columns, ``output.path_columns``). A run longer than KEEP_PERIODS
+    periods (scenario/stream.py) keeps every ``sample_stride``-th sample only (t_k, k a multiple
+    of the stride), the schedules there, the command *in force* there (held: no NaN after the
+    first), and no switches (``switch_count`` counts them); its metrics, plot and ``--mcap``
+    recording are of every period all the same. ``error``: why the run stopped early (None: it
+    ran to the end); ``exception``: what the controller raised, with its traceback (None
+    otherwise); dds back end:
     ``domain`` (the node's ROS domain), and against the wall clock ``node_timing`` (the node's
     missed deadlines, resyncs, jitter and step time from its last /diagnostics: TIMING_KEYS of
     scenario/dds.py) and ``diagnostics`` (its /diagnostics messages: (t [s], CDR bytes))."""
@@ -106,6 +108,11 @@ class ScenarioRun:
             held[:first[0] if len(first) else len(c)] = np.nan
         return held
 
+    @property
+    def columns(self):
+        """The samples' columns (output.path_columns of the machine's paths)."""
+        return path_columns((self.samples.shape[1] - N_COLUMNS) // 4)
+
     def trace(self):
         """The run as an analysis Trace (true state, exact switch times); a run that kept every
         sample only."""
@@ -113,18 +120,10 @@ class ScenarioRun:
             raise ValueError(f"{self.scenario.name}: the run kept every "
                              f"{self.sample_stride}th sample of its {self.scenario.periods} "
                              f"periods; run_scenario(..., keep_samples=True) keeps them all")
-        s = self.samples
-        sw_t = np.array([t for t, _ in self.switches], dtype=float)
-        sw_on = np.array([e for _, e in self.switches], dtype=bool)
-        pick = [COL[c] for c in ('motor_torque', 'clutch_torque', 'shaft_torque', 'load_torque')]
-        return Trace(source=str(self.scenario.path), kind='scenario', t=s[:, COL['t']].copy(),
-                     phi=s[:, [COL['phi1'], COL['phi2'], COL['phi3'], COL['phi4']]],
-                     omega=s[:, [COL['omega1'], COL['omega2'], COL['omega3'], COL['omega4']]],
-                     effort=s[:, pick], twist=s[:, COL['twist']].copy(),
-                     crank_length=s[:, COL['crank_length']].copy(), switch_t=sw_t,
-                     switch_engaged=sw_on, initial_engaged=bool(s[0, COL['engaged']] > 0.5),
-                     switches_exact=True, parameters=dict(self.scenario.values),
-                     scene=str(self.scenario.scene))
+        return trace_of_samples(self.samples, self.columns, self.switches,
+                                source=str(self.scenario.path), kind='scenario',
+                                parameters=dict(self.scenario.values),
+                                scene=str(self.scenario.scene))
 
     def events(self):
         """The steps the loop had to answer: the start, each set-point and load change."""

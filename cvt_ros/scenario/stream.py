@@ -24,7 +24,8 @@ import numpy as np
 from ..analysis.errors import AnalysisError
 from ..analysis.step_stream import StepStream
 from ..analysis.stepinfo import METRICS, StepEvent
-from ..solver.output import COL
+from ..solver.clutch_sets import path_masks, set_changes
+from ..solver.output import COL, N_COLUMNS
 
 BLOCK = 1 << 16               # control periods per block
 KEEP_PERIODS = 1_000_000      # a run of at most this many periods keeps every sample
@@ -165,7 +166,7 @@ class RunStream:
     # ------------------------------------------------------------------ the harness's side
     def start(self, row):
         """The block buffers (rows, commands) with the t = 0 sample in place."""
-        width = max(len(row), 1)
+        width = max(len(row), N_COLUMNS)
         self.rows = np.empty((self.block, width))
         self.commands = np.full(self.block, np.nan)
         self.rows[0] = row
@@ -254,6 +255,9 @@ class RunStream:
         self.sample_count += len(ks)
         self.switch_count += len(switches)
         if self.analysis_error is None:
+            if self.n_paths > 1:   # the metrics' switches: those of "any clutch engaged"
+                changes, self.mask = set_changes(switches, self.mask)
+                switches = [(c.t, c.engaged) for c in changes if c.any_changed]
             sw_t = np.array([s[0] for s in switches], dtype=float)
             sw_on = np.array([s[1] for s in switches], dtype=bool)
             block = {'t': t, 'phi': rows[:, _PHI], 'omega': rows[:, _OMEGA],
@@ -274,6 +278,9 @@ class RunStream:
     def _begin(self, row):
         sc = self.scenario
         self.engaged0 = bool(row[_ENGAGED] > 0.5)
+        # N ≥ 2 paths: each clutch's switches, and the engaged set they start from
+        self.n_paths = n = (len(row) - N_COLUMNS) // 4
+        self.mask = path_masks(row[N_COLUMNS + 2 * n:N_COLUMNS + 3 * n]) if n > 1 else None
         self.start_speed = float(row[_OMEGA[3]])
         self.steps = StepStream(step_events(sc, self.start_speed), self._setpoint_at, self.dt,
                                 self.since)

@@ -324,14 +324,22 @@ def watch_step(method, kind, err_idx, t, h, clipped, t_end, y, y_new, K, mode, P
     if armed and g0 > 0.0:
         tol_theta = max(1e-13, 8.0 * 2.2e-16 * abs(t)) / h
         if guard_polynomial(method, h, y, y_new, K, mode, P, C, G):
-            ga = G[0]
+            # (with its exponential term: a massless damped node's relaxing twist, which just
+            # after a twist release can stand above the slip itself, so that the polynomial
+            # alone starts below zero: a catch was then placed at the step's end, 18 rad/s past)
+            ga = guard_value(G, 0.0)
             hi = -1.0
             ghi = 0.0
             if g1 < 0.0:
                 hi = 1.0
                 ghi = g1
                 gb = guard_value(G, 1.0)
-                theta = first_root(G, ga, gb, tol_theta) if (ga > 0.0 and gb < 0.0) else 1.0
+                if ga > 0.0 and gb < 0.0:
+                    theta = first_root(G, ga, gb, tol_theta)
+                else:   # the polynomial does not bracket the true guard's fall: located on it
+                    theta = locate_root(False, False, method, t, h, y, y_new, K, t, h, y, clock,
+                                        mode, P, ACT, 0.0, 1.0, g0, g1, -1.0, 0.0, tol_theta,
+                                        ytmp, dytmp, auxtmp, ytmp, counters)
             else:
                 tm, gm = lowest_point(G, -gtol)
                 if gm < -gtol or (tm > 0.0 and gm < DIP_CHECK * min(ga, g1)):

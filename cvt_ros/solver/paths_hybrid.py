@@ -22,14 +22,29 @@ the same time).
 """
 import math
 
+import numpy as np
+
 from ..physics.compiled import inline_kernel, kernel
 from ..physics.drives import next_actuator_break
-from ..physics.dynamics import finite_state
-from ..physics.layout import P_C, P_J3, P_KD, P_RIGID, TWIST
+from ..physics.dynamics import disengaged_output_rates, finite_state
+from ..physics.layout import (
+    N_OUTPUT,
+    OMEGA3,
+    OMEGA4,
+    OUTPUT_STATES,
+    P_C,
+    P_J3,
+    P_KD,
+    P_LINEAR_OUTPUT,
+    P_RIGID,
+    TWIST,
+)
 from ..physics.path_contacts import settle_contacts
 from ..physics.paths import (
+    A_ACCEL,
     A_SLIP,
     A_SLIP_RATE,
+    A_SPEED,
     MAX_PATHS,
     N_PATH_AUX,
     bit,
@@ -39,6 +54,7 @@ from ..physics.paths import (
     set_size,
 )
 from . import advance_layout as AL
+from .advance_layout import DIP_STACK, N_MODAL
 from .dense_step import sample_due
 from .guard_watch import SETTLE_BANDS, SETTLE_OVERSHOOT, SETTLE_STEPS
 from .hybrid import (
@@ -51,9 +67,10 @@ from .hybrid import (
     PI_SAFETY,
 )
 from .paths_layout import E_PATH, MAX_STATE
+from .paths_open import N_LOOK_ROWS, open_watch
 from .paths_steps import emit_paths_samples, paths_initial_step, paths_step
 from .paths_watch import first_crossing, path_guard
-from .steppers import DOPRI5, DP_ERROR_EXPONENT, MAX_FACTOR, MIN_FACTOR, SAFETY
+from .steppers import DOPRI5, DP_ERROR_EXPONENT, FULL, INPUT, MAX_FACTOR, MIN_FACTOR, SAFETY
 from .witness import N_GUARD, N_POLY
 
 KIND_RELEASE = 0        # physics/clutch.py's KIND_* (the one-path event kinds)
@@ -97,7 +114,7 @@ def _resized(err):
 
 @kernel
 def _creep_onto_catch(method, t, t_end, y, y_new, K, path, mode, P, ACT, aux1, ytmp, rtol, atol,
-                      grid, out, counters, dytmp, auxtmp):
+                      grid, out, counters, dytmp, auxtmp, zs, LIN, W, ztmp):
     """Short true steps from a landing short of path's catch (y at t, K[6] and aux1 its rates)
     to the slip's band, each SETTLE_OVERSHOOT × the Newton step on the exact slip rate (as
     guard_watch.creep_onto_catch for one path); stops at the band or past it, or where a step
@@ -114,14 +131,15 @@ def _creep_onto_catch(method, t, t_end, y, y_new, K, path, mode, P, ACT, aux1, y
             break
         for i in range(n):
             K[0, i] = K[6, i]
-        paths_step(method, t, y, dt, mode, P, ACT, K, y_new, ytmp, aux1, rtol, atol, counters)
+        paths_step(method, FULL, t, y, dt, mode, P, ACT, K, y_new, ytmp, aux1, rtol, atol,
+                   counters)
         if aux1[A_SLIP + path] < -first:   # too far past: stay (aux1 back at y)
             paths_rhs(t, y, mode, P, ACT, K[6], aux1)
             counters[AL.C_RHS] += 1
             break
         if sample_due(grid, counters, t + dt):
             emit_paths_samples(method, t, dt, y, y_new, K, mode, P, ACT, grid, out, counters,
-                               t + dt, ytmp, dytmp, auxtmp)
+                               t + dt, ytmp, dytmp, auxtmp, False, zs, LIN, W, ztmp)
         t += dt
         for i in range(n):
             y[i] = y_new[i]
@@ -167,11 +185,28 @@ def _record(events, counters, t, old, new, struck, path, value, late, npaths):
     counters[AL.C_EVENTS] = e
 
 
+@inline_kernel
+def _freeze_output(K0):
+    """K0 as the rates of an INPUT step: the open output's held at zero (it runs apart)."""
+    for i in OUTPUT_STATES:
+        K0[i] = 0.0
+
+
+@inline_kernel
+def _open_slips(y, P, aux):
+    """Every path's slip and slip rate in aux at a split step's end (paths_open.py): the
+    right-hand side there saw the output frozen at the step's start; y holds the exact one."""
+    _, dw3, _, _, _ = disengaged_output_rates(y[TWIST], y[OMEGA3], y[OMEGA4], P)
+    for k in range(n_paths(P)):
+        aux[A_SLIP + k] = y[OMEGA3] - aux[A_SPEED + k]
+        aux[A_SLIP_RATE + k] = dw3 - aux[A_ACCEL + k]
+
+
 @kernel
-def advance_paths(t, t_end, y, ms, P, ACT, S, h_io, grid, out, events, counters, ledger,
+def advance_paths(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, counters, ledger,
                   scratch):
     """Integrate the N-path machine from t to t_end [s]; returns the time reached (module
-    text; the arguments as hybrid.advance's without the modal form)."""
+    text; the arguments as hybrid.advance's)."""
     method = int(S[AL.S_METHOD])
     rtol = S[AL.S_RTOL]
     atol = S[AL.S_ATOL]
@@ -180,26 +215,46 @@ def advance_paths(t, t_end, y, ms, P, ACT, S, h_io, grid, out, events, counters,
     m = MAX_STATE
     K = scratch[0:7 * n].reshape((7, n))
     states = scratch[7 * m:11 * m].reshape((4, m))
-    y_new, ytmp, dytmp = states[0, :n], states[1, :n], states[2, :n]
+    y_new, ytmp, dytmp, ycomb = states[0, :n], states[1, :n], states[2, :n], states[3, :n]
     auxes = scratch[11 * m:11 * m + 3 * N_PATH_AUX].reshape((3, N_PATH_AUX))
     aux0, aux1, auxtmp = auxes[0], auxes[1], auxes[2]
     rest = scratch[11 * m + 3 * N_PATH_AUX:]
     C = rest[:3 * N_POLY].reshape((3, N_POLY))
     G = rest[3 * N_POLY:3 * N_POLY + N_GUARD]
     npaths = n_paths(P)
-    guards = rest[3 * N_POLY + N_GUARD:3 * N_POLY + N_GUARD + 2 * MAX_PATHS]
+    o = 3 * N_POLY + N_GUARD
+    guards = rest[o:o + 2 * MAX_PATHS]
     g0, g1 = guards[:npaths], guards[MAX_PATHS:MAX_PATHS + npaths]
+    o += 2 * MAX_PATHS
+    # the open output's: its state at the step's start, look and end, its modal coordinates,
+    # the dip stack, every rocker speed's polynomial, the looks' per-path rows (paths_open.py)
+    outputs = rest[o:o + 4 * N_OUTPUT].reshape((4, N_OUTPUT))
+    zs, z, z_new, ztmp = outputs[0], outputs[1], outputs[2], outputs[3]
+    o += 4 * N_OUTPUT
+    W = rest[o:o + N_MODAL].view(np.complex128).reshape((2, 3))
+    o += N_MODAL
+    stack = rest[o:o + 6 * DIP_STACK].reshape((6, DIP_STACK))
+    o += 6 * DIP_STACK
+    Cv = rest[o:o + MAX_PATHS * N_POLY].reshape((MAX_PATHS, N_POLY))
+    o += MAX_PATHS * N_POLY
+    looks = rest[o:o + N_LOOK_ROWS * MAX_PATHS].reshape((N_LOOK_ROWS, MAX_PATHS))
     massless_undamped = P[P_J3] == 0.0 and P[P_KD] == 0.0 and P[P_RIGID] == 0.0
+    # with every clutch open a linear elastic output runs apart, solved exactly
+    can_split = P[P_LINEAR_OUTPUT] > 0.0 and P[P_RIGID] == 0.0 and P[P_J3] > 0.0
     mode = ms[0]
     armed = ms[1]
     counters[AL.C_STATUS] = AL.STATUS_OK
 
     paths_rhs(t, y, mode, P, ACT, K[0], aux0)
     counters[AL.C_RHS] += 1
+    split = can_split and mode == 0
+    if split:
+        _freeze_output(K[0])
     armed |= _guards(mode, aux0, P, g0)
     h_prop = h_io[AL.H_MAIN]
     if method == DOPRI5 and h_prop <= 0.0:
-        h_prop = paths_initial_step(t, y, mode, P, ACT, K[0], rtol, atol, ytmp, dytmp, auxtmp)
+        h_prop = paths_initial_step(INPUT if split else FULL, t, y, mode, P, ACT, K[0], rtol,
+                                    atol, ytmp, dytmp, auxtmp)
         counters[AL.C_RHS] += 1
     err_old = ERR_OLD_START
     t_start = t
@@ -223,8 +278,9 @@ def advance_paths(t, t_end, y, ms, P, ACT, S, h_io, grid, out, events, counters,
             h = end - t
         if h <= 0.0:
             break
-        err = paths_step(method, t, y, h, mode, P, ACT, K, y_new, ytmp, aux1, rtol, atol,
-                         counters)
+        split = can_split and mode == 0
+        err = paths_step(method, INPUT if split else FULL, t, y, h, mode, P, ACT, K, y_new, ytmp,
+                         aux1, rtol, atol, counters)
         counters[AL.C_STEPS] += 1
         counters[AL.C_ENGAGED_STEPS] += 1 if mode != 0 else 0
         factor = 1.0
@@ -251,18 +307,31 @@ def advance_paths(t, t_end, y, ms, P, ACT, S, h_io, grid, out, events, counters,
             break
 
         h_found = h   # the step the event was found in (the restart's scale)
-        theta, path, fire = first_crossing(armed, g0, g1, method, t, h, y, y_new, K, mode, P,
-                                           ACT, aux1, C, G, ytmp, dytmp, auxtmp, counters)
-        if fire == AL.NO_EVENT or fire == AL.FOUND_LATE:
-            t_new = t_end if (clipped and t + h >= t_end) else t + h
+        t_whole = t_end if (clipped and t + h >= t_end) else t + h
+        if split:
+            # every clutch open: the output apart, exactly; the slips watched on it
+            t_new, path, fire, armed = open_watch(
+                method, t, h, y, y_new, K, P, ACT, LIN, W, zs, z, z_new, ztmp, stack, Cv, looks,
+                armed, g0, rtol, atol, aux1, ytmp, ycomb, dytmp, auxtmp, counters)
+            _open_slips(y_new, P, aux1)
+            if fire == AL.NO_EVENT:
+                t_new = t_whole
+            else:
+                h = t_new - t
         else:
-            h = theta * h   # a true step re-taken to the located switch
-            paths_step(method, t, y, h, mode, P, ACT, K, y_new, ytmp, aux1, rtol, atol,
-                       counters)
-            t_new = t + h
+            theta, path, fire = first_crossing(armed, g0, g1, method, t, h, y, y_new, K, mode,
+                                               P, ACT, aux1, C, G, ytmp, dytmp, auxtmp, zs, LIN,
+                                               W, ztmp, counters)
+            if fire == AL.NO_EVENT or fire == AL.FOUND_LATE:
+                t_new = t_whole
+            else:
+                h = theta * h   # a true step re-taken to the located switch
+                paths_step(method, FULL, t, y, h, mode, P, ACT, K, y_new, ytmp, aux1, rtol,
+                           atol, counters)
+                t_new = t + h
         if sample_due(grid, counters, t_new):
             emit_paths_samples(method, t, h, y, y_new, K, mode, P, ACT, grid, out, counters,
-                               t_new, ytmp, dytmp, auxtmp)
+                               t_new, ytmp, dytmp, auxtmp, split, zs, LIN, W, ztmp)
         t = t_new
         for i in range(n):
             y[i] = y_new[i]
@@ -271,9 +340,12 @@ def advance_paths(t, t_end, y, ms, P, ACT, S, h_io, grid, out, events, counters,
             # a catch whose re-taken step landed short of the slip's band by the dense
             # output's error: true steps on by Newton on the slip's exact rate (a new step
             # would find the catch again at its very start: a sliver and a restart more)
+            if split:   # (short whole-state steps: the rates of the whole state first)
+                paths_rhs(t, y, mode, P, ACT, K[6], aux1)
+                counters[AL.C_RHS] += 1
             t, value = _creep_onto_catch(method, t, t_end, y, y_new, K, path, mode, P, ACT,
                                          aux1, ytmp, rtol, atol, grid, out, counters, dytmp,
-                                         auxtmp)
+                                         auxtmp, zs, LIN, W, ztmp)
         if fire == AL.NO_EVENT or (fire == AL.CROSSING and value > band):
             # no switch, or the true state has not reached the guard yet: go on from here
             if fire == AL.NO_EVENT:
@@ -281,6 +353,8 @@ def advance_paths(t, t_end, y, ms, P, ACT, S, h_io, grid, out, events, counters,
             paths_project(t, y, mode, P, ACT, auxtmp)
             for i in range(n):
                 K[0, i] = K[6, i]
+            if split:
+                _freeze_output(K[0])
             armed |= _guards(mode, aux1, P, g0)
             continue
 
@@ -307,13 +381,16 @@ def advance_paths(t, t_end, y, ms, P, ACT, S, h_io, grid, out, events, counters,
             counters[AL.C_LATE] += 1
         # half-open rule: a guard at zero after the reset is disarmed until it leaves its band
         armed = _guards(mode, aux0, P, g0)
+        split = can_split and mode == 0
+        if split:
+            _freeze_output(K[0])
         if method == DOPRI5 and switched:
             # a fresh start in the new set (hybrid.py: its dynamics differ), capped by the first
             # step accepted after the last switch into an engaged (or open) machine, and by 4×
             # the step the event was found in (not the step re-taken to it: found just after a
             # landing short of it, that one is a sliver)
-            h_new = paths_initial_step(t, y, mode, P, ACT, K[0], rtol, atol, ytmp, dytmp,
-                                       auxtmp)
+            h_new = paths_initial_step(INPUT if split else FULL, t, y, mode, P, ACT, K[0], rtol,
+                                       atol, ytmp, dytmp, auxtmp)
             counters[AL.C_RHS] += 1
             h_prop = min(h_new, 4.0 * h_found) if h_new > 0.0 else h_prop
             cap = h_io[AL.H_RESTART + (1 if mode else 0)]

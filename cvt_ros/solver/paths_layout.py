@@ -6,6 +6,7 @@ from ..physics import layout as L
 from ..physics.paths import MAX_PATHS, N_PATH_AUX, N_PATH_PARAMS
 from . import advance_layout as AL
 from .output import N_COLUMNS
+from .paths_open import N_LOOK_ROWS
 from .witness import N_GUARD, N_POLY
 
 E_PATH = AL.N_EVENT_COLUMNS        # the path (0-based) whose clutch switched
@@ -15,9 +16,12 @@ MAX_STATE = L.N_STATE + MAX_PATHS
 N_PATH_COLUMNS = 4                 # phi2_k, omega2_k, engaged_k, clutch_torque_k
 MAX_ROW = N_COLUMNS + N_PATH_COLUMNS * MAX_PATHS
 
-# scratch of one advance_paths call: K (7 rows), y_new, ytmp, dytmp, ytmp2; aux0, aux1, auxtmp;
-# C, G; the guards at the step's start and end
-N_PATH_SCRATCH = 11 * MAX_STATE + 3 * N_PATH_AUX + 3 * N_POLY + N_GUARD + 2 * MAX_PATHS
+# scratch of one advance_paths call: K (7 rows), y_new, ytmp, dytmp, ycomb; aux0, aux1, auxtmp;
+# C, G; the guards at the step's start and end; the open output's states (4), modal
+# coordinates and dip stack, the rocker speeds' polynomials and the looks' rows (paths_open.py)
+N_PATH_SCRATCH = (11 * MAX_STATE + 3 * N_PATH_AUX + 3 * N_POLY + N_GUARD + 2 * MAX_PATHS
+                  + 4 * L.N_OUTPUT + AL.N_MODAL + 6 * AL.DIP_STACK + MAX_PATHS * N_POLY
+                  + N_LOOK_ROWS * MAX_PATHS)
 
 # the PathsSimulator's float block
 PF_Y = 0

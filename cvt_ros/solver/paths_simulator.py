@@ -31,7 +31,14 @@ from .simulator import _KIND_NAMES, I_COUNTERS, I_MS, I_SIZE, ClutchSwitch, Simu
 class PathsSimulator(Simulator):
     """N identical crank-rocker paths on one crank, each with its own one-way clutch on J3
     (docs/physics.md §9). ``values`` as the Simulator's; ``paths.count`` sets N."""
-    steps_open_output = True   # the N-path loop integrates the open output with the input
+
+    @property
+    def steps_open_output(self):
+        """Does the N-path loop integrate the open output with the input? Not where it is
+        linear (P_LINEAR_OUTPUT): with every clutch open it runs apart, exactly
+        (paths_open.py); with a clutch engaged it is the engaged shaft's mode, which the fixed
+        step resolves anyway (simulator.stepped_rates)."""
+        return not self.P[L.P_LINEAR_OUTPUT] > 0.0
 
     def __init__(self, values=None, events_capacity=4096):
         self.values = params_mod.validate(values or {})
@@ -105,9 +112,9 @@ class PathsSimulator(Simulator):
 
     # ------------------------------------------------------------------ integration
     def _call(self, t_end, grid, out, objects=True):
-        self.t = advance_paths(self.t, t_end, self.y, self.ms, self.P, self.ACT, self.S,
-                               self.h_io, grid, out, self._events_buf, self.counters, self.ledger,
-                               self._scratch)
+        self.t = advance_paths(self.t, t_end, self.y, self.ms, self.P, self.ACT, self.LIN,
+                               self.S, self.h_io, grid, out, self._events_buf, self.counters,
+                               self.ledger, self._scratch)
         return self._finish_call(objects)
 
     @staticmethod

@@ -14,13 +14,16 @@ band at the step's end with nothing located is 'late' (FOUND_LATE), as for one p
 import math
 
 from ..physics import layout as L
-from ..physics.compiled import kernel
+from ..physics.compiled import inline_kernel, kernel
+from ..physics.layout import Z_OMEGA3
+from ..physics.output_exact import output_at
 from ..physics.paths import (
     A_SLIP,
     A_TORQUE,
     V_PATH,
     bit,
     n_paths,
+    path_speed,
     paths_rhs,
     set_size,
     slip_band,
@@ -28,6 +31,7 @@ from ..physics.paths import (
 )
 from . import witness
 from .advance_layout import C_RHS, CROSSING, FOUND_LATE, NO_EVENT
+from .dense_step import MAX_SECANTS
 from .guard_watch import DIP_CHECK
 from .steppers import dense_coefficients, dense_state
 
@@ -110,37 +114,73 @@ def _look(k, sign, below, method, t, h, y0, y1, K, mode, P, ACT, lo, ytmp, dytmp
     return -1.0, 0.0, prev, gprev
 
 
+@inline_kernel
+def open_slip(k, method, sigma, t, h, y0, y1, K, tau, hs, zs, LIN, W, P, ACT, ycomb, ztmp):
+    """Path k's true slip at tau + σ·hs inside a split step [t, t + h] (every clutch open, the
+    output apart: paths_open.py): the exact output's ω3 (zs: the output at t, W its modal
+    coordinates) less the linkage's rocker speed at the dense crank state."""
+    tt = tau + sigma * hs
+    dense_state(method, (tt - t) / h, h, y0, y1, K, ycomb)
+    output_at(tt - t, zs, P, LIN, W, ztmp, False)
+    return ztmp[Z_OMEGA3] - path_speed(k, tt, ycomb, P, ACT)
+
+
+@inline_kernel
+def _guard_at(split, k, method, m, t, h, y0, y1, K, mode, P, ACT, tau, hs, zs, LIN, W, ytmp,
+              dytmp, auxtmp, ztmp, counters):
+    """Path k's true guard at θ = m of the step (through the right-hand side), or at σ = m of
+    a split step's look (the slip, with the linkage's rocker speed)."""
+    if split:
+        return open_slip(k, method, m, t, h, y0, y1, K, tau, hs, zs, LIN, W, P, ACT, ytmp, ztmp)
+    return true_path_guard(k, method, m, t, h, y0, y1, K, mode, P, ACT, ytmp, dytmp, auxtmp,
+                           counters)
+
+
 @kernel
-def locate_path_root(k, method, t, h, y0, y1, K, mode, P, ACT, lo, hi, glo, ghi, start, slope,
-                     tol_theta, ytmp, dytmp, auxtmp, counters):
-    """The root of path k's true guard in [lo, hi], g(lo) > 0 > g(hi); θ just past it. Secants
-    from ``start`` (the polynomial's root, with its ``slope``; < 0: none) while they stay in
-    the bracket, Illinois' regula falsi (every 4th point a bisection) otherwise."""
+def locate_path_root(split, k, method, t, h, y0, y1, K, mode, P, ACT, tau, hs, zs, LIN, W, lo,
+                     hi, glo, ghi, start, slope, tol_theta, ytmp, dytmp, auxtmp, ztmp,
+                     counters):
+    """The root of path k's true guard in [lo, hi], g(lo) > 0 > g(hi); θ just past it
+    (``_guard_at``: over the step, or over a split step's look). dense_step.locate_root's
+    safeguarded secant from ``start`` (the polynomial's or a Hermite cubic's root, with its
+    ``slope``; < 0: none), Illinois' regula falsi where a secant leaves the bracket and after
+    MAX_SECANTS points."""
     side = 0
+    m_prev, g_prev = (lo, glo) if glo < -ghi else (hi, ghi)
     nxt = start
-    m_prev = -1.0
-    g_prev = 0.0
-    for it in range(100):
+    for it in range(200):
         if hi - lo <= tol_theta:
             break
-        m = nxt if lo < nxt < hi else witness.illinois_point(it, lo, hi, glo, ghi)
-        gm = true_path_guard(k, method, m, t, h, y0, y1, K, mode, P, ACT, ytmp, dytmp, auxtmp,
-                             counters)
+        m = nxt if it < MAX_SECANTS and lo < nxt < hi else witness.illinois_point(
+            it, lo, hi, glo, ghi)
+        gm = _guard_at(split, k, method, m, t, h, y0, y1, K, mode, P, ACT, tau, hs, zs, LIN, W,
+                       ytmp, dytmp, auxtmp, ztmp, counters)
         lo, hi, glo, ghi, side = witness.illinois_update(m, gm, lo, hi, glo, ghi, side)
-        if side == 0:
+        if side == 0 or hi - lo <= tol_theta:
             break
-        s = slope if m_prev < 0.0 else (gm - g_prev) / (m - m_prev)
+        s = slope if it == 0 and m == start else (gm - g_prev) / (m - m_prev)
         m_prev = m
         g_prev = gm
-        nxt = m - gm / s if s < 0.0 else -1.0
-        if abs(nxt - m) < 0.25 * tol_theta:   # on the root: close the bracket over it
-            nxt = m + (0.5 * tol_theta if gm > 0.0 else -0.5 * tol_theta)
+        nxt = -1.0
+        if not s < 0.0:
+            continue
+        step = -gm / s
+        if abs(step) < 0.25 * tol_theta:
+            # on the root: one point half a tolerance over it closes the bracket
+            p = m + (0.5 * tol_theta if gm > 0.0 else -0.5 * tol_theta)
+            gp = _guard_at(split, k, method, p, t, h, y0, y1, K, mode, P, ACT, tau, hs, zs, LIN,
+                           W, ytmp, dytmp, auxtmp, ztmp, counters)
+            lo, hi, glo, ghi, side = witness.illinois_update(p, gp, lo, hi, glo, ghi, side)
+            if side == 0:
+                break
+            continue
+        nxt = m + step
     return hi
 
 
 @kernel
 def path_crossing(k, armed, g0, g1, band, method, t, h, y0, y1, K, mode, P, ACT, tol_theta,
-                  C, G, ytmp, dytmp, auxtmp, counters):
+                  C, G, ytmp, dytmp, auxtmp, zs, LIN, W, ztmp, counters):
     """Where path k's guard falls through zero inside the step [t, t + h] (module text): (θ of
     the root on the true guard, CROSSING), (1, FOUND_LATE) for a guard beyond its band at the
     end with nothing located, or (−1, NO_EVENT)."""
@@ -197,13 +237,14 @@ def path_crossing(k, armed, g0, g1, band, method, t, h, y0, y1, K, mode, P, ACT,
         return -1.0, NO_EVENT
     if not glo > 0.0 > ghi:
         return -1.0, NO_EVENT
-    return locate_path_root(k, method, t, h, y0, y1, K, mode, P, ACT, lo, hi, glo, ghi, start,
-                            slope, tol_theta, ytmp, dytmp, auxtmp, counters), CROSSING
+    return locate_path_root(False, k, method, t, h, y0, y1, K, mode, P, ACT, t, h, zs, LIN, W,
+                            lo, hi, glo, ghi, start, slope, tol_theta, ytmp, dytmp, auxtmp,
+                            ztmp, counters), CROSSING
 
 
 @kernel
 def first_crossing(armed, g0, g1, method, t, h, y0, y1, K, mode, P, ACT, aux1, C, G, ytmp,
-                   dytmp, auxtmp, counters):
+                   dytmp, auxtmp, zs, LIN, W, ztmp, counters):
     """The earliest switch of any path inside the accepted step: (θ, path, fire); fire
     NO_EVENT when none. g0, g1: every path's guard at the step's start and end (g1 from
     aux1, written here); armed: the paths whose guard has left its band since their last
@@ -219,7 +260,7 @@ def first_crossing(armed, g0, g1, method, t, h, y0, y1, K, mode, P, ACT, aux1, C
         band = path_guard(k, mode, aux1, P)[1]
         theta, found = path_crossing(k, armed & bit(k) != 0, g0[k], g1[k], band, method, t, h,
                                      y0, y1, K, mode, P, ACT, tol_theta, C, G, ytmp, dytmp,
-                                     auxtmp, counters)
+                                     auxtmp, zs, LIN, W, ztmp, counters)
         # the earliest located crossing; a late guard only where none is located
         if found == CROSSING and (fire != CROSSING or theta < best) or (
                 found == FOUND_LATE and fire == NO_EVENT):

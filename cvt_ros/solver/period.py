@@ -109,7 +109,7 @@ def hybrid_period(t, dt, h_fixed, F, I, LIN, events, turns1, turns4):
 
 
 @njit(cache=True, error_model='numpy', fastmath=FASTMATH, _nrt=False)
-def paths_period(t, dt, h_fixed, F, I, events, turns1, turns4):
+def paths_period(t, dt, h_fixed, F, I, LIN, events, turns1, turns4):
     """PathsSimulator.advance(dt) then .sample() into its row, over its blocks
     (paths_layout.PF_*): (t, code, crank rate), as hybrid_period."""
     n = int(F[PL.PF_P + P_PATHS])
@@ -123,7 +123,7 @@ def paths_period(t, dt, h_fixed, F, I, events, turns1, turns4):
         S[AL.S_H_FIXED] = dt / max(1, math.ceil(dt / h_fixed - 1e-9))
     ms = I[I_MS:I_COUNTERS]
     counters = I[I_COUNTERS:]
-    t = advance_paths(t, t + dt, y, ms, P, ACT, S, F[PL.PF_H:PL.PF_LEDGER], no_grid,
+    t = advance_paths(t, t + dt, y, ms, P, ACT, LIN, S, F[PL.PF_H:PL.PF_LEDGER], no_grid,
                       no_grid.reshape((0, columns)), events, counters, F[PL.PF_LEDGER:PL.PF_DY],
                       F[PL.PF_SCRATCH:PL.PF_SIZE])
     if counters[AL.C_STATUS] != AL.STATUS_OK or _rebase_due(y):
@@ -202,7 +202,8 @@ class PeriodStepper:
                 sim.turns_phi4, self._aux, self._ysample, self.row)
         elif self.paths:
             sim.t, code, rate = paths_period(t0, self.dt, sim.h_fixed, self._floats, self._ints,
-                                             self._events, sim.turns_phi1, sim.turns_phi4)
+                                             sim.LIN, self._events, sim.turns_phi1,
+                                             sim.turns_phi4)
         else:   # (the blocks and the events table are never rebound: kept at __init__)
             sim.t, code, rate = hybrid_period(t0, self.dt, sim.h_fixed, self._floats,
                                               self._ints, sim.LIN, self._events,

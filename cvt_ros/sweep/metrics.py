@@ -17,11 +17,11 @@ import math
 import numpy as np
 
 from ..analysis.cycles import UNPHYSICAL_NOTES, cycle_metrics, physical
+from ..analysis.path_metrics import path_metrics
 from ..analysis.steady import find_steady_state
 from ..analysis.stepinfo import METRICS as STEP_METRICS
-from ..analysis.trace import Trace
+from ..analysis.trace import trace_of_samples
 from ..solver.offline import summarize
-from ..solver.output import COL
 
 #: name → (unit, meaning); the order of the table's columns
 SCENE_METRICS = {
@@ -40,7 +40,17 @@ SCENE_METRICS = {
     'output_power': ('W', 'mean power taken by the load over the window'),
     'run_peak_clutch_torque': ('N*m', 'largest sampled clutch torque of the whole run '
                                       '(start-up included)'),
+    # N paths (issue 33): what one clutch carries (= the totals above for one path)
+    'peak_path_clutch_torque': ('N*m', 'largest sampled torque of any one clutch in the window '
+                                       '(the most loaded path\'s)'),
+    'path_engaged_fraction': ('-', 'time one clutch is engaged / window length, the mean over '
+                                   'the paths'),
+    'run_peak_path_clutch_torque': ('N*m', 'largest sampled torque of any one clutch in the '
+                                           'whole run (start-up included)'),
 }
+#: per-path figures (analysis.path_metrics) behind the path metrics: (figure, reduction)
+_FROM_PATHS = {'peak_path_clutch_torque': ('clutch_torque_peak', max),
+               'path_engaged_fraction': ('engaged_fraction', lambda v: sum(v) / len(v))}
 _FROM_WINDOW = {'mean_ratio': 'ratio', 'efficiency': 'efficiency',
                 'peak_clutch_torque': 'clutch_torque_peak', 'output_speed': 'output_speed',
                 'crank_speed': 'crank_speed', 'ripple': 'ripple', 'load_factor': 'load_factor',
@@ -65,18 +75,17 @@ def default_metrics(kind):
 
 def trace_of_run(values, result):
     """A finished ``Simulator.run`` as an analysis Trace (true state, exact switch times)."""
-    s = result.samples
-    switches = [x for x in result.switches if x.kind != 'graze']
-    pick = [COL[c] for c in ('motor_torque', 'clutch_torque', 'shaft_torque', 'load_torque')]
-    return Trace(source='sweep case', kind='sweep', t=s[:, COL['t']],
-                 phi=s[:, [COL[f'phi{i}'] for i in range(1, 5)]],
-                 omega=s[:, [COL[f'omega{i}'] for i in range(1, 5)]],
-                 effort=s[:, pick], twist=s[:, COL['twist']],
-                 crank_length=s[:, COL['crank_length']],
-                 switch_t=np.array([x.t for x in switches], dtype=float),
-                 switch_engaged=np.array([x.engaged for x in switches], dtype=bool),
-                 initial_engaged=bool(s[0, COL['engaged']] > 0.5), switches_exact=True,
-                 parameters=dict(values))
+    return trace_of_samples(result.samples, result.columns, result.switches,
+                            source='sweep case', kind='sweep', parameters=dict(values))
+
+
+def _path_figures(trace, figures):
+    """Per-path figures over the window (whole run without one); one path: the machine's own
+    (its one clutch)."""
+    if trace.paths is None:
+        return [{'engaged_fraction': figures.get('engaged_fraction', math.nan),
+                 'clutch_torque_peak': figures.get('clutch_torque_peak', math.nan)}]
+    return path_metrics(trace, figures.get('t_start'), figures.get('t_end'))
 
 
 def _window(cycles, window):
@@ -98,9 +107,17 @@ def scene_metrics(values, result, duration, window, names):
     out = dict.fromkeys(names, math.nan)
     warnings = list(summary['warnings']) + list(result.diagnostics.get('warnings', ()))
     with np.errstate(all='ignore'):
-        cycles = cycle_metrics(trace_of_run(values, result))[0]
+        trace = trace_of_run(values, result)
+        cycles = cycle_metrics(trace)[0]
         first, steady, why = _window(cycles, window)
         figures = cycles.window(first, len(cycles)) if first < len(cycles) else {}
+        if figures and set(_FROM_PATHS) & set(out):
+            for name, (key, reduce) in _FROM_PATHS.items():
+                if name in out:
+                    out[name] = float(reduce([p[key] for p in _path_figures(trace, figures)]))
+        if 'run_peak_path_clutch_torque' in out:
+            out['run_peak_path_clutch_torque'] = max(summary.get(
+                'peak_clutch_torque_per_path_Nm', [summary['peak_clutch_torque_Nm']]))
     if why:
         warnings.append(why)
     if figures:
