@@ -8,10 +8,12 @@ import tracemalloc
 import numpy as np
 import pytest
 
+from cvt_ros.recording.reader import summary
 from cvt_ros.scenario import harness, load_scenario, run_scenario, stream
+from cvt_ros.scenario.recording import write_mcap
 
 SCENARIO = """\
-    scene: conveyor
+    scene: {scene}
     duration: {duration}
     setpoint: {{initial: 55.0, changes: [{{at: 0.4, step: 60.0}},
                                          {{at: 1.1, ramp: {{to: 50.0, duration: 0.3}}}}]}}
@@ -19,9 +21,9 @@ SCENARIO = """\
     """
 
 
-def scenario(folder, duration):
-    path = folder / f"s{duration:g}.yaml"
-    path.write_text(textwrap.dedent(SCENARIO.format(duration=duration)))
+def scenario(folder, duration, scene='conveyor'):
+    path = folder / f"{scene}_{duration:g}.yaml"
+    path.write_text(textwrap.dedent(SCENARIO.format(duration=duration, scene=scene)))
     return load_scenario(path)
 
 
@@ -34,13 +36,21 @@ def same(a, b):
     return a == b
 
 
-@pytest.mark.parametrize('block', [64, 997])
-def test_the_streamed_step_metrics_are_the_whole_traces(tmp_path, monkeypatch, block):
-    """Blocks of 64 periods (cycles and step windows cross block ends) and of 997: every step's
-    figures and the run-level ones, from the start and from a time named before the run, as
-    stepinfo gives them on the whole trace the run kept."""
+@pytest.mark.parametrize('block, scene', [(64, 'conveyor'), (997, 'conveyor'),
+                                          (64, 'conveyor_4path')])
+def test_the_streamed_step_metrics_are_the_whole_traces(tmp_path, monkeypatch, block, scene):
+    """Blocks of 64 periods (cycles and step windows cross block ends) and of 997, one path and
+    four (each clutch's switches; the metrics count "any engaged"): every step's figures and the
+    run-level ones, from the start and from a time named before the run, as stepinfo gives them
+    on the whole trace the run kept; the recording made as the run went is write_mcap's."""
     monkeypatch.setattr(stream, 'BLOCK', block)
-    run = run_scenario(scenario(tmp_path, 2.0), metrics_since=0.5)
+    run = run_scenario(scenario(tmp_path, 2.0, scene), metrics_since=0.5,
+                       mcap=tmp_path / 'streamed.mcap')
+    assert run.recording_error is None
+    assert write_mcap(run, tmp_path / 'whole.mcap') == (run.recording_count, None)
+    streamed, whole = (summary(tmp_path / f).topics for f in ('streamed.mcap', 'whole.mcap'))
+    assert {k: v.message_count for k, v in streamed.items()} == \
+        {k: v.message_count for k, v in whole.items()}
     assert run.whole_trace and run.summary.error is None
     exact, streamed = run.steps, run.summary.steps
     assert [s['kind'] for s in exact] == ['start', 'setpoint', 'load', 'setpoint']
