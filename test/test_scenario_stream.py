@@ -10,6 +10,7 @@ import pytest
 
 from cvt_ros.recording.reader import summary
 from cvt_ros.scenario import harness, load_scenario, run_scenario, stream
+from cvt_ros.scenario.plot import plot_run
 from cvt_ros.scenario.recording import write_mcap
 
 SCENARIO = """\
@@ -94,6 +95,8 @@ def test_a_long_run_holds_one_block_and_a_bounded_trace(tmp_path, monkeypatch):
         assert sum(math.isfinite(v) for v in run.metrics.values()) >= 6
         with pytest.raises(ValueError, match='keep_samples=True'):
             run.trace()
+    plot_run(run, tmp_path / 'long.png')   # (from the outline the stream made)
+    assert (tmp_path / 'long.png').read_bytes()[:4] == b'\x89PNG'
     # kept whole, 30 s is 30 000 rows of 22 floats (5.3 MB): 5.8 times 3 s's peak; streamed
     # 1.5 times (the plot's outline goes from 3001 raw points to its 4000 columns)
     assert peaks[30.0] < 2.0 * peaks[3.0], peaks
