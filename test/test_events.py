@@ -20,6 +20,7 @@ from cvt_ros.physics import layout as L
 from cvt_ros.physics.linkage import grashof_bound
 from cvt_ros.scene import available_scenes, load_scene
 from cvt_ros.solver.output import COL
+from cvt_ros.solver.fidelity import make_simulator
 from cvt_ros.solver.reference import solve_reference
 from cvt_ros.solver.self_check import stray_band, stray_samples
 from cvt_ros.solver.simulator import Simulator
@@ -682,9 +683,9 @@ def test_the_realtime_solver_is_right_on_every_shipped_scene(scene):
     1 ms as the node advances) switches as dopri5 at rtol 1e-10 and ends within 1e-6 of its φ4,
     with nothing suspected by its self-check."""
     values = load_scene(scene)
-    sim = Simulator(dict(values, **{'solver.method': 'rk4'}))
+    sim = make_simulator(dict(values, **{'solver.method': 'rk4'}))
     count = sum(real_switches(SimpleNamespace(switches=sim.advance(1e-3))) for _ in range(1500))
-    reference = Simulator(dict(values, **{'solver.rtol': 1e-10, 'solver.atol': 1e-12}))
+    reference = make_simulator(dict(values, **{'solver.rtol': 1e-10, 'solver.atol': 1e-12}))
     assert count == real_switches(reference.run(1.5, 0.01))
     assert sim.self_check()['possible_missed_events'] == 0
     phi4 = reference.sample()[COL['phi4']]
