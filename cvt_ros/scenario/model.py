@@ -37,7 +37,8 @@ MAX_DURATION = 86400.0          # s
 MAX_PERIODS = 100_000_000       # control periods in one run: a day at 1 ms. A run streams
 #   (scenario/stream.py): its buffers are one block, its kept trace at most KEEP_PERIODS samples
 #   (~0.2 GB); what still grows is the step window under way, 24 B a crank turn (≤ 1 turn a
-#   period: ≤ 2.4 GB here, a day of the conveyor's crank 50 MB) — and the time: ≥ 20 min of CPU
+#   period: ≤ 2.4 GB here, a day of the conveyor's crank 50 MB) — and the time: a day at 1 ms
+#   takes 8 min of CPU with the averaged fidelity, ~35 min with the full model
 MIN_PERIODS = 2                 # control periods in one run at least (three samples)
 SPEED_LIMIT = 1e4               # rad/s: the parameter table's bound on speeds
 
