@@ -19,8 +19,8 @@ from cvt_ros.parameters import SPECS, parameter_vector, validate
 from cvt_ros.physics import layout as L
 from cvt_ros.physics.linkage import grashof_bound
 from cvt_ros.scene import available_scenes, load_scene
-from cvt_ros.solver.output import COL
 from cvt_ros.solver.fidelity import make_simulator
+from cvt_ros.solver.output import COL
 from cvt_ros.solver.reference import solve_reference
 from cvt_ros.solver.self_check import stray_band, stray_samples
 from cvt_ros.solver.simulator import Simulator
