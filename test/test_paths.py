@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
-from test_events import NEAR_MISS, RANDOM_MACHINES, STRAY, machines, margin, stray
+from test_events import NEAR_MISS, RANDOM_MACHINES, STRAY, machine, machines, margin, stray
 
 from cvt_ros.parameters import ParameterError, phase_offsets, validate
 from cvt_ros.physics import layout as L
@@ -199,6 +199,29 @@ def test_random_machines_of_n_paths_switch_the_same_at_every_tolerance(values, n
     assume(all(s.t < 0.3 - 1e-3 for result in runs.values() for s in result.switches))
     counts = {rtol: result.switch_count for rtol, result in runs.items()}
     assert len(set(counts.values())) == 1, counts
+
+
+def test_a_guard_that_leaves_its_band_downwards_is_located_there():
+    """A machine hypothesis found (CVT_RANDOM_MACHINES=100, 2026-11-27): the start impact engages
+    rocker 2 at 8.0 rad/s, whose acceleration then matches the open node's within 3e-4
+    (slip rate +0.021 rad/s², torque −1.7e-5 N·m: the reset map opens the clutch), but the
+    node's deceleration grows at 4e6 rad/s³: the slip rises 6e-11 rad/s (band 1.7e-9), falls
+    through zero at 12 ns and leaves its band downwards at 36 ns. That is where the switch is
+    (scipy's reference makes it there), not at the end of the first step (0.11 ms, a late catch
+    with an impact at −0.023 rad/s: 2.4e-3 of stray slip, at every rtol)."""
+    values = machine(0.005, math.exp(-1.75), math.exp(-5.0), math.exp(-7.115234375), 1.0,
+                     math.exp(6.0), math.exp(-5.015625), 0.0, 156.0, **{'paths.count': 3})
+    reference = solve_paths_reference(values, 0.3)
+    assert reference.switch_times[0] < 1e-7 and reference.switch_paths[0] == [2]
+    for rtol in (1e-4, 1e-7, 1e-10):
+        result = run(values, 0.3, 2e-5, rtol=rtol)[1]
+        first = result.switches[0]
+        assert (first.kind, first.path) == ('engage', 2), rtol
+        assert first.t == pytest.approx(reference.switch_times[0], abs=1e-9), rtol
+        assert result.diagnostics['possible_missed_events'] == 0, rtol
+        assert path_stray(result, 3) < STRAY, rtol
+        times = sorted({s.t for s in result.switches if s.kind != 'graze'})
+        assert len(times) == len(reference.switch_times) == 18, rtol
 
 
 @pytest.mark.parametrize('scene', ['paper', 'conveyor', 'mixer', 'rigid_shaft',
