@@ -5,7 +5,8 @@ N = 1).
 
 ``advance_paths`` integrates from t to t_end. After every accepted step every path's guard is
 watched along the whole step (paths_watch.py); the earliest crossing is reached by a step
-re-taken exactly to it (one that lands short of the guard's band goes on from there, armed),
+re-taken exactly to it (one that lands short of the guard's band goes on from there, armed; one
+that lands further past it than rtol × its scale is moved back, ``_settle_back``),
 and the reset map (physics/path_contacts.py) decides the new engaged set there: a release, a
 catch, a handoff (one path engaging as another releases) or the locked crank, by
 complementarity, with an impact only where a rocker is found faster than the node (a start, a
