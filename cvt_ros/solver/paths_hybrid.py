@@ -5,7 +5,8 @@ N = 1).
 
 ``advance_paths`` integrates from t to t_end. After every accepted step every path's guard is
 watched along the whole step (paths_watch.py); the earliest crossing is reached by a step
-re-taken exactly to it (one that lands short of the guard's band goes on from there, armed),
+re-taken exactly to it (one that lands short of the guard's band goes on from there, armed; one
+that lands further past it than rtol × its scale is moved back, ``_settle_back``),
 and the reset map (physics/path_contacts.py) decides the new engaged set there: a release, a
 catch, a handoff (one path engaging as another releases) or the locked crank, by
 complementarity, with an impact only where a rocker is found faster than the node (a start, a
@@ -24,6 +25,7 @@ import math
 
 import numpy as np
 
+from ..physics.clutch import SLIP_TOLERANCE, TORQUE_TOLERANCE
 from ..physics.compiled import inline_kernel, kernel
 from ..physics.drives import next_actuator_break
 from ..physics.dynamics import disengaged_output_rates, finite_state
@@ -69,9 +71,9 @@ from .hybrid import (
 from .paths_layout import E_PATH, MAX_STATE
 from .paths_open import N_LOOK_ROWS, open_watch
 from .paths_steps import emit_paths_samples, paths_initial_step, paths_step
-from .paths_watch import first_crossing, path_guard
+from .paths_watch import first_crossing, path_guard, path_guard_polynomial
 from .steppers import DOPRI5, DP_ERROR_EXPONENT, FULL, INPUT, MAX_FACTOR, MIN_FACTOR, SAFETY
-from .witness import N_GUARD, N_POLY
+from .witness import N_GUARD, N_POLY, guard_rate
 
 KIND_RELEASE = 0        # physics/clutch.py's KIND_* (the one-path event kinds)
 KIND_ENGAGE = 1
@@ -147,6 +149,31 @@ def _creep_onto_catch(method, t, t_end, y, y_new, K, path, mode, P, ACT, aux1, y
         if g <= path_guard(path, mode, aux1, P)[1]:
             break
     return t, g
+
+
+@kernel
+def _settle_back(method, t, h_whole, theta, y, y_new, K, path, mode, P, ACT, G, aux1, ytmp, rtol,
+                 atol, counters):
+    """θ of the re-taken step's landing on path's switch, moved back where it fell further past
+    the guard than rtol × the guard's scale (guard_watch.watch_step's settling for one path): the
+    true step re-taken to θ follows the state, not the long step's dense output, and at a loose
+    rtol crosses before it (rtol 1e-4, a 6.7 ms engaged step: a release placed at −4.8e-3 N·m,
+    10 µs past, on a 10 N·m machine). Newton steps on the guard polynomial's rate G (of the whole
+    step), aimed just past zero (SETTLE_OVERSHOOT, at most half the bound), each a true step
+    re-taken (y_new, K[6], aux1 there); never forwards."""
+    for _ in range(SETTLE_STEPS):
+        g, band = path_guard(path, mode, aux1, P)
+        bound = rtol * band / (TORQUE_TOLERANCE if mode & bit(path) else SLIP_TOLERANCE)
+        rate = guard_rate(G, theta)
+        if not (g < -bound and rate < 0.0):
+            break
+        back = theta - (g + min((SETTLE_OVERSHOOT - 1.0) * abs(g), 0.5 * bound)) / rate
+        if not 0.0 < back < theta:
+            break
+        theta = back
+        paths_step(method, FULL, t, y, theta * h_whole, mode, P, ACT, K, y_new, ytmp, aux1, rtol,
+                   atol, counters)
+    return theta
 
 
 @inline_kernel
@@ -325,9 +352,16 @@ def advance_paths(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, coun
             if fire == AL.NO_EVENT or fire == AL.FOUND_LATE:
                 t_new = t_whole
             else:
-                h = theta * h   # a true step re-taken to the located switch
+                # a true step re-taken to the located switch (the guard's polynomial over the
+                # whole step first: a landing too far past is moved back on its rate)
+                poly = path_guard_polynomial(path, method, h, y, y_new, K, mode, P, C, G)
+                h_whole = h
+                h = theta * h
                 paths_step(method, FULL, t, y, h, mode, P, ACT, K, y_new, ytmp, aux1, rtol,
                            atol, counters)
+                if poly:
+                    h = _settle_back(method, t, h_whole, theta, y, y_new, K, path, mode, P, ACT,
+                                     G, aux1, ytmp, rtol, atol, counters) * h_whole
                 t_new = t + h
         if sample_due(grid, counters, t_new):
             emit_paths_samples(method, t, h, y, y_new, K, mode, P, ACT, grid, out, counters,

@@ -13,7 +13,8 @@ looked at (slip_watch._slip_floor: the usual free-running step, every path clear
 in looks of ≤ 3 rad of the ringing (0.75 rad near a band, or while a fast real mode lives), each
 checked for a fall through zero at its end, a dip inside it by Hermite cubics of the slip with
 its exact rates under an error bound (slip_look.split_dip) or, for a path whose clutch has just
-released, a rise out of the band and a fall (slip_look.left_band_upwards). The rocker speed in a
+released, a rise out of the band and a fall (slip_look.left_band_upwards), else the slip's fall
+out of the band's lower edge (paths_watch.locate_band_exit). The rocker speed in a
 look is the input step's dense polynomial of v_k; what a look finds is confirmed and located on
 the true slip (the linkage's v_k at the dense crank state, paths_watch.open_slip), whose own
 extremum is searched for where the two disagree (``_true_beyond``). In the first look where any
@@ -29,7 +30,7 @@ from ..physics.output_exact import modal_coordinates, modes_over, output_at, out
 from ..physics.paths import V_PATH, bit, n_paths
 from .advance_layout import C_SUBSTEPS, CROSSING, FOUND_LATE, NO_EVENT
 from .paths_steps import paths_step
-from .paths_watch import locate_path_root, open_slip
+from .paths_watch import locate_band_exit, locate_path_root, open_slip
 from .slip_look import left_band_upwards, omega3_rate, poly_rate, split_dip
 from .slip_watch import (
     ARMED_PHASE_STEP,
@@ -168,8 +169,8 @@ def _look_at_path(k, armed, method, t, h, y0, y1, K, tau, hs, x1, zs, LIN, W, cl
         if gt_hi < 0.0 < gt_lo:
             start, slope = hermite_root(g0, d0, g1, d1, lo, hi)
             sigma = locate_path_root(True, k, method, t, h, y0, y1, K, 0, P, ACT, tau, hs, zs,
-                                     LIN, W, lo, hi, gt_lo, gt_hi, start, slope, tol_s, ycomb,
-                                     dytmp, auxtmp, ztmp, counters)
+                                     LIN, W, lo, hi, gt_lo, gt_hi, start, slope, tol_s, 0.0,
+                                     ycomb, dytmp, auxtmp, ztmp, counters)
         elif gt_hi >= -gtol:
             fire = NO_EVENT   # a dip of the rocker speed's interpolant alone
             if hi == 1.0:
@@ -178,6 +179,17 @@ def _look_at_path(k, armed, method, t, h, y0, y1, K, tau, hs, x1, zs, LIN, W, cl
             fire = NO_EVENT   # the true slip never left the band upwards: found late below
         else:
             sigma = lo if gt_lo <= 0.0 else hi
+    if fire == NO_EVENT and g1 < -gtol and not (armed and g0 > 0.0):
+        # from inside the band to below it, never above it: where the true slip leaves the
+        # band downwards (paths_watch.locate_band_exit), not late at the look's end
+        gs = open_slip(k, method, 0.0, t, h, y0, y1, K, tau, hs, zs, LIN, W, P, ACT, ycomb, ztmp)
+        ge = open_slip(k, method, 1.0, t, h, y0, y1, K, tau, hs, zs, LIN, W, P, ACT, ycomb, ztmp)
+        tol_s = max(1e-13, 8.0 * 2.2e-16 * abs(tau)) / hs
+        exit_at = locate_band_exit(True, k, method, t, h, y0, y1, K, 0, P, ACT, tau, hs, zs, LIN,
+                                   W, gs, ge, gtol, tol_s, ycomb, dytmp, auxtmp, ztmp, counters)
+        if exit_at >= 0.0:
+            sigma = exit_at
+            fire = CROSSING
     if fire == NO_EVENT and g1 < -gtol:
         fire = FOUND_LATE
     looks[LOOK_RATE, k] = dv1

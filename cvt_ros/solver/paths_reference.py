@@ -18,9 +18,10 @@ from .reference import ReferenceResult
 
 
 def solve_paths_reference(values, t_end, method='DOP853', rtol=1e-12, atol=1e-14,
-                          max_switches=100000, max_step=np.inf):
+                          max_switches=100000, max_step=np.inf, start=None):
     """Integrate an N-path scene from its consistent initial state (a PathsSimulator's, start-up
-    impact included) to t_end [s]; returns a ReferenceResult whose switch_times and switch_modes
+    impact included; or ``start``'s present state, a PathsSimulator of the scene, which is left
+    as it is) to t_end [s]; returns a ReferenceResult whose switch_times and switch_modes
     (the engaged set after each reset, a bitmask) list every reset that changed the set, and
     ``switch_paths`` the paths whose clutch switched there.
 
@@ -32,7 +33,7 @@ def solve_paths_reference(values, t_end, method='DOP853', rtol=1e-12, atol=1e-14
     lasts) is watched for leaving the band (upwards: armed from there, the segment goes on; or
     downwards: a switch there), not for its root, which it sits on. Without it scipy finds the
     rounding of those slips crossing zero at every segment's start and never leaves the lock."""
-    sim = PathsSimulator(values)
+    sim = PathsSimulator(values) if start is None else start
     P, ACT, t, y, mode = sim.P, sim.ACT, sim.t, sim.y.copy(), int(sim.ms[0])
     dy = np.empty_like(y)
     aux = np.empty(N_PATH_AUX)

@@ -8,8 +8,12 @@ engaged path's torque Jn·ωn' + Ts from the node's speed, the twist and the out
 lowest point bounding a dip through zero and back (witness.py's pieces), a crossing located on
 the true guard (one right-hand side per look). With two clutches engaged (the locked crank) the
 torques come from a linear solve, not a polynomial: they are looked at N_LOOKS times along the
-step instead. Of the crossings of all paths the earliest is the event; a guard found beyond its
-band at the step's end with nothing located is 'late' (FOUND_LATE), as for one path.
+step instead. Of the crossings of all paths the earliest is the event. A guard that started the
+step inside its band (disarmed after a switch) and ends below it is located where it left the band
+upwards and fell back through zero, or else where it leaves the band downwards (a higher-order
+contact the reset's first-order decision missed: ``locate_band_exit``, as the reference does); a
+guard found beyond its band at the step's end with nothing located is 'late' (FOUND_LATE), as for
+one path.
 """
 import math
 
@@ -138,10 +142,10 @@ def _guard_at(split, k, method, m, t, h, y0, y1, K, mode, P, ACT, tau, hs, zs, L
 
 @kernel
 def locate_path_root(split, k, method, t, h, y0, y1, K, mode, P, ACT, tau, hs, zs, LIN, W, lo,
-                     hi, glo, ghi, start, slope, tol_theta, ytmp, dytmp, auxtmp, ztmp,
+                     hi, glo, ghi, start, slope, tol_theta, offset, ytmp, dytmp, auxtmp, ztmp,
                      counters):
-    """The root of path k's true guard in [lo, hi], g(lo) > 0 > g(hi); θ just past it
-    (``_guard_at``: over the step, or over a split step's look). dense_step.locate_root's
+    """The root of g = path k's true guard + ``offset`` in [lo, hi], g(lo) > 0 > g(hi); θ just
+    past it (``_guard_at``: over the step, or over a split step's look). dense_step.locate_root's
     safeguarded secant from ``start`` (the polynomial's or a Hermite cubic's root, with its
     ``slope``; < 0: none), Illinois' regula falsi where a secant leaves the bracket and after
     MAX_SECANTS points."""
@@ -154,7 +158,7 @@ def locate_path_root(split, k, method, t, h, y0, y1, K, mode, P, ACT, tau, hs, z
         m = nxt if it < MAX_SECANTS and lo < nxt < hi else witness.illinois_point(
             it, lo, hi, glo, ghi)
         gm = _guard_at(split, k, method, m, t, h, y0, y1, K, mode, P, ACT, tau, hs, zs, LIN, W,
-                       ytmp, dytmp, auxtmp, ztmp, counters)
+                       ytmp, dytmp, auxtmp, ztmp, counters) + offset
         lo, hi, glo, ghi, side = witness.illinois_update(m, gm, lo, hi, glo, ghi, side)
         if side == 0 or hi - lo <= tol_theta:
             break
@@ -169,13 +173,31 @@ def locate_path_root(split, k, method, t, h, y0, y1, K, mode, P, ACT, tau, hs, z
             # on the root: one point half a tolerance over it closes the bracket
             p = m + (0.5 * tol_theta if gm > 0.0 else -0.5 * tol_theta)
             gp = _guard_at(split, k, method, p, t, h, y0, y1, K, mode, P, ACT, tau, hs, zs, LIN,
-                           W, ytmp, dytmp, auxtmp, ztmp, counters)
+                           W, ytmp, dytmp, auxtmp, ztmp, counters) + offset
             lo, hi, glo, ghi, side = witness.illinois_update(p, gp, lo, hi, glo, ghi, side)
             if side == 0:
                 break
             continue
         nxt = m + step
     return hi
+
+
+@kernel
+def locate_band_exit(split, k, method, t, h, y0, y1, K, mode, P, ACT, tau, hs, zs, LIN, W, g0,
+                     g1, band, tol_theta, ytmp, dytmp, auxtmp, ztmp, counters):
+    """θ just past where path k's true guard, inside its band at θ = 0 (g0) and below it at
+    θ = 1 (g1) without having left it upwards, crosses the band's lower edge −band; −1 when
+    g0, g1 do not bracket it. Such a guard started at zero after a reset whose first-order
+    decision (a rate of the guard ≥ 0) a higher order overturns at once: the slip of a rocker
+    whose acceleration matched the node's within 3e-4 after a start impact rose 6e-11 rad/s
+    (its band: 1.7e-9), fell through zero 12 ns later and left the band downwards at 36 ns.
+    The switch belongs there, where the reference (paths_reference.py) makes it too — not at
+    the end of the step (0.1 ms on: a late catch, an impact at −0.023 rad/s)."""
+    if not g0 + band > 0.0 > g1 + band:
+        return -1.0
+    return locate_path_root(split, k, method, t, h, y0, y1, K, mode, P, ACT, tau, hs, zs, LIN,
+                            W, 0.0, 1.0, g0 + band, g1 + band, -1.0, 0.0, tol_theta, band, ytmp,
+                            dytmp, auxtmp, ztmp, counters)
 
 
 @kernel
@@ -231,6 +253,12 @@ def path_crossing(k, armed, g0, g1, band, method, t, h, y0, y1, K, mode, P, ACT,
                                   ytmp, dytmp, auxtmp, counters)
             if 0.0 < top < 1.0:
                 lo, glo, hi, ghi = top, gt, 1.0, g1
+        if hi < 0.0:   # it never left the band upwards: where it leaves it downwards
+            theta = locate_band_exit(False, k, method, t, h, y0, y1, K, mode, P, ACT, t, h, zs,
+                                     LIN, W, g0, g1, band, tol_theta, ytmp, dytmp, auxtmp,
+                                     ztmp, counters)
+            if theta >= 0.0:
+                return theta, CROSSING
     if hi < 0.0:
         if g1 < -band:
             return 1.0, FOUND_LATE
@@ -238,7 +266,7 @@ def path_crossing(k, armed, g0, g1, band, method, t, h, y0, y1, K, mode, P, ACT,
     if not glo > 0.0 > ghi:
         return -1.0, NO_EVENT
     return locate_path_root(False, k, method, t, h, y0, y1, K, mode, P, ACT, t, h, zs, LIN, W,
-                            lo, hi, glo, ghi, start, slope, tol_theta, ytmp, dytmp, auxtmp,
+                            lo, hi, glo, ghi, start, slope, tol_theta, 0.0, ytmp, dytmp, auxtmp,
                             ztmp, counters), CROSSING
 
 
