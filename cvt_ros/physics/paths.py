@@ -35,7 +35,7 @@ from .clutch import (
 )
 from .compiled import inline_kernel, kernel
 from .drives import crank_actuator, load_torque, motor_torque
-from .linkage import kinematics, rocker_angle, rocker_cos_sin
+from .linkage import kinematics_at, rocker_angle, rocker_cos_sin
 
 TWO_PI = 2.0 * math.pi
 MAX_PATHS = 8
@@ -43,7 +43,19 @@ MAX_PATHS = 8
 # --- parameter vector: the one-path P, then N and the phase offsets -------------------------
 P_PATHS = L.N_PARAMS            # N
 P_OFFSET = L.N_PARAMS + 1       # + k: path k+1's phase offset δ [rad] (its crank angle φ1 + δ)
-N_PATH_PARAMS = P_OFFSET + MAX_PATHS
+P_COS_OFFSET = P_OFFSET + MAX_PATHS      # + k: cos δ of path k+1
+P_SIN_OFFSET = P_COS_OFFSET + MAX_PATHS  # + k: sin δ of path k+1
+N_PATH_PARAMS = P_SIN_OFFSET + MAX_PATHS
+
+
+def offset_parameters(P, offsets):
+    """The path count and phase offsets [rad] into P, with each offset's cosine and sine (the
+    linkages take the sine and cosine of φ1 once and rotate them: ``path_cos_sin``)."""
+    P[P_PATHS] = len(offsets)
+    for k, delta in enumerate(offsets):
+        P[P_OFFSET + k] = delta
+        P[P_COS_OFFSET + k] = math.cos(delta)
+        P[P_SIN_OFFSET + k] = math.sin(delta)
 
 # --- state: the one-path slots, then the rocker speeds ---------------------------------------
 V_PATH = L.N_STATE              # + k: v of path k+1 [rad/s]
@@ -102,6 +114,15 @@ def n_paths(P):
     return int(P[P_PATHS])
 
 
+@inline_kernel
+def path_cos_sin(k, c1, s1, P):
+    """(cos, sin) of path k's crank angle φ1 + δ_k from those of φ1: a rotation by δ_k (one
+    sine and cosine a linkage solve for all N paths; exact for δ = 0, path 1's default)."""
+    cd = P[P_COS_OFFSET + k]
+    sd = P[P_SIN_OFFSET + k]
+    return c1 * cd - s1 * sd, s1 * cd + c1 * sd
+
+
 @kernel
 def paths_linkage(phi1, w1, a, ad, add, P, aux):
     """Each path's u_k, g_a,k, κ_k, v_k into ``aux`` (closed form at φ1 + δ_k, physics.md §2, §5);
@@ -112,8 +133,11 @@ def paths_linkage(phi1, w1, a, ad, add, P, aux):
     sigma = P[L.P_SIGMA]
     su2 = 0.0
     suk = 0.0
+    c1 = math.cos(phi1)
+    s1 = math.sin(phi1)
     for k in range(n_paths(P)):
-        _, _, u, up, ga, ua, gaa = kinematics(phi1 + P[P_OFFSET + k], a, b, d, h, sigma)
+        ck, sk = path_cos_sin(k, c1, s1, P)
+        _, _, u, up, ga, ua, gaa = kinematics_at(ck, sk, a, b, d, h, sigma)
         kappa = up * w1 * w1 + 2.0 * ua * ad * w1 + gaa * ad * ad + ga * add
         aux[A_U + k] = u
         aux[A_GA + k] = ga
@@ -128,8 +152,8 @@ def paths_linkage(phi1, w1, a, ad, add, P, aux):
 def path_speed(k, t, y, P, ACT):
     """Path k's rocker speed v_k = u_k·ω1 + g_a,k·a' [rad/s] at (t, y), from the closed form."""
     a, ad, _ = crank_actuator(t, ACT)
-    _, _, u, _, ga, _, _ = kinematics(y[L.PHI1] + P[P_OFFSET + k], a, P[L.P_B], P[L.P_D],
-                                      P[L.P_H], P[L.P_SIGMA])
+    ck, sk = path_cos_sin(k, math.cos(y[L.PHI1]), math.sin(y[L.PHI1]), P)
+    _, _, u, _, ga, _, _ = kinematics_at(ck, sk, a, P[L.P_B], P[L.P_D], P[L.P_H], P[L.P_SIGMA])
     return u * y[L.OMEGA1] + ga * ad
 
 
