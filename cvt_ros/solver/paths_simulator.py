@@ -23,7 +23,7 @@ from ..physics.paths import (
     N_PATH_AUX,
     N_PATH_PARAMS,
     P_OFFSET,
-    offset_parameters,
+    path_parameters,
     paths_project,
     paths_rhs,
 )
@@ -81,7 +81,7 @@ class PathsSimulator(Simulator):
     def _parameter_vector(values):
         P = np.zeros(N_PATH_PARAMS)
         P[:L.N_PARAMS] = params_mod.parameter_vector(values)
-        offset_parameters(P, params_mod.phase_offsets(values))
+        path_parameters(P, params_mod.phase_offsets(values))
         return P
 
     # ------------------------------------------------------------------ set-up
