@@ -141,8 +141,13 @@ def rocker_cos_sin(phi1, a, b, d, h, sigma):
     cos φ2 = (P·R − σ·Q·√(ρ² − R²))/ρ²,  sin φ2 = (Q·R + σ·P·√(ρ² − R²))/ρ².
     Two transcendental calls per evaluation instead of six: the RHS's hot path.
     """
-    c1 = math.cos(phi1)
-    s1 = math.sin(phi1)
+    return rocker_cos_sin_at(math.cos(phi1), math.sin(phi1), a, b, d, h, sigma)
+
+
+@inline_kernel
+def rocker_cos_sin_at(c1, s1, a, b, d, h, sigma):
+    """``rocker_cos_sin`` from cos φ1 and sin φ1: N paths on one crank take the sine and cosine
+    of φ1 once and rotate them by each path's offset (physics/paths.py)."""
     p = 2.0 * b * h - 2.0 * a * b * c1
     q = -2.0 * a * b * s1
     r = -(a * a + b * b + h * h - d * d) + 2.0 * a * h * c1
@@ -159,7 +164,15 @@ def kinematics(phi1, a, b, d, h, sigma):
     g_a = ∂φ2/∂a [rad/m], u_a = ∂²φ2/∂φ1∂a [1/m], g_aa = ∂²φ2/∂a² [rad/m²] (implicit
     differentiation of eq. 1 with the partials of f).
     """
-    c2, s2, c1, s1 = rocker_cos_sin(phi1, a, b, d, h, sigma)
+    return kinematics_at(math.cos(phi1), math.sin(phi1), a, b, d, h, sigma)
+
+
+@inline_kernel
+def kinematics_at(c1, s1, a, b, d, h, sigma):
+    """``kinematics`` from cos φ1 and sin φ1 (``rocker_cos_sin_at``). Its cosine and sine come
+    back through rocker_cos_sin_at, as they did through rocker_cos_sin before the split: the
+    compiled one-path right-hand side stays the same to the bit."""
+    c2, s2, c1, s1 = rocker_cos_sin_at(c1, s1, a, b, d, h, sigma)
     c12 = c1 * c2 + s1 * s2   # cos(φ1 − φ2)
     s12 = s1 * c2 - c1 * s2   # sin(φ1 − φ2)
     f1, f2, fa, f11, f12, f22, f1a, f2a = _partials(a, b, h, c1, s1, c2, s2, c12, s12)

@@ -26,6 +26,7 @@ rocker speed v_k, integrated alongside so that the dense output of a step gives 
 polynomial (solver/paths_watch.py), and put back on the closed form after each step.
 """
 import math
+import random
 
 from . import layout as L
 from .clutch import (
@@ -35,7 +36,7 @@ from .clutch import (
 )
 from .compiled import inline_kernel, kernel
 from .drives import crank_actuator, load_torque, motor_torque
-from .linkage import kinematics, rocker_angle, rocker_cos_sin
+from .linkage import kinematics_at, rocker_angle, rocker_cos_sin
 
 TWO_PI = 2.0 * math.pi
 MAX_PATHS = 8
@@ -43,7 +44,24 @@ MAX_PATHS = 8
 # --- parameter vector: the one-path P, then N and the phase offsets -------------------------
 P_PATHS = L.N_PARAMS            # N
 P_OFFSET = L.N_PARAMS + 1       # + k: path k+1's phase offset δ [rad] (its crank angle φ1 + δ)
-N_PATH_PARAMS = P_OFFSET + MAX_PATHS
+P_COS_OFFSET = P_OFFSET + MAX_PATHS      # + k: cos δ of path k+1
+P_SIN_OFFSET = P_COS_OFFSET + MAX_PATHS  # + k: sin δ of path k+1
+P_STAMP = P_SIN_OFFSET + MAX_PATHS       # this P's stamp (``paths_linkage``'s cache key)
+N_PATH_PARAMS = P_STAMP + 1
+_STAMPS = random.SystemRandom()   # (not the seeded global generator: a stamp never recurs)
+
+
+def path_parameters(P, offsets):
+    """The path count and phase offsets [rad] into P, with each offset's cosine and sine (the
+    linkages take the sine and cosine of φ1 once and rotate them: ``path_cos_sin``), and a
+    fresh random stamp: a linkage solved under another P is never taken from an aux's cache
+    (``paths_linkage``)."""
+    P[P_STAMP] = float(1 + _STAMPS.getrandbits(52))
+    P[P_PATHS] = len(offsets)
+    for k, delta in enumerate(offsets):
+        P[P_OFFSET + k] = delta
+        P[P_COS_OFFSET + k] = math.cos(delta)
+        P[P_SIN_OFFSET + k] = math.sin(delta)
 
 # --- state: the one-path slots, then the rocker speeds ---------------------------------------
 V_PATH = L.N_STATE              # + k: v of path k+1 [rad/s]
@@ -64,7 +82,11 @@ A_TORQUE = A_ACCEL + MAX_PATHS    # λ_k [N·m] (0 when open; an impulse [N·m·
 A_SLIP = A_TORQUE + MAX_PATHS     # s_k = ωn − v_k [rad/s]
 A_SLIP_RATE = A_SLIP + MAX_PATHS  # s_k' [rad/s²]
 A_JUMP = A_SLIP_RATE + MAX_PATHS  # −s_k: the speed jump an impact asks of contact k [rad/s]
-N_PATH_AUX = A_JUMP + MAX_PATHS
+A_UP = A_JUMP + MAX_PATHS         # u'_k = ∂u_k/∂φ1 [1/rad]; with u_k, g_a,k and the next two:
+A_UA = A_UP + MAX_PATHS           # u_a,k [1/m]          the linkage solved at (φ1, a) of
+A_GAA = A_UA + MAX_PATHS          # g_aa,k [rad/m²]      A_LINK (paths_linkage's cache)
+A_LINK = A_GAA + MAX_PATHS        # φ1, a and P's stamp of that solve
+N_PATH_AUX = A_LINK + 3
 
 NO_SET = -1   # ``impact``/``choose_engaged``: no valid set found
 
@@ -102,21 +124,47 @@ def n_paths(P):
     return int(P[P_PATHS])
 
 
+@inline_kernel
+def path_cos_sin(k, c1, s1, P):
+    """(cos, sin) of path k's crank angle φ1 + δ_k from those of φ1: a rotation by δ_k (one
+    sine and cosine a linkage solve for all N paths; exact for δ = 0, path 1's default)."""
+    cd = P[P_COS_OFFSET + k]
+    sd = P[P_SIN_OFFSET + k]
+    return c1 * cd - s1 * sd, s1 * cd + c1 * sd
+
+
 @kernel
 def paths_linkage(phi1, w1, a, ad, add, P, aux):
     """Each path's u_k, g_a,k, κ_k, v_k into ``aux`` (closed form at φ1 + δ_k, physics.md §2, §5);
-    returns (Σu_k², Σu_k·κ_k): the rockers reflected on the crank."""
-    b = P[L.P_B]
-    d = P[L.P_D]
-    h = P[L.P_H]
-    sigma = P[L.P_SIGMA]
+    returns (Σu_k², Σu_k·κ_k): the rockers reflected on the crank. The solve at (φ1, a) is
+    kept in ``aux`` (A_U, A_GA, A_UP, A_UA, A_GAA) and taken from there at the same φ1, a and
+    P: a reset (physics/path_contacts.py) and a sample evaluate one state several times."""
+    n = n_paths(P)
+    if not (aux[A_LINK] == phi1 and aux[A_LINK + 1] == a and aux[A_LINK + 2] == P[P_STAMP]):
+        b = P[L.P_B]
+        d = P[L.P_D]
+        h = P[L.P_H]
+        sigma = P[L.P_SIGMA]
+        c1 = math.cos(phi1)
+        s1 = math.sin(phi1)
+        for k in range(n):
+            ck, sk = path_cos_sin(k, c1, s1, P)
+            _, _, u, up, ga, ua, gaa = kinematics_at(ck, sk, a, b, d, h, sigma)
+            aux[A_U + k] = u
+            aux[A_UP + k] = up
+            aux[A_GA + k] = ga
+            aux[A_UA + k] = ua
+            aux[A_GAA + k] = gaa
+        aux[A_LINK] = phi1
+        aux[A_LINK + 1] = a
+        aux[A_LINK + 2] = P[P_STAMP]
     su2 = 0.0
     suk = 0.0
-    for k in range(n_paths(P)):
-        _, _, u, up, ga, ua, gaa = kinematics(phi1 + P[P_OFFSET + k], a, b, d, h, sigma)
-        kappa = up * w1 * w1 + 2.0 * ua * ad * w1 + gaa * ad * ad + ga * add
-        aux[A_U + k] = u
-        aux[A_GA + k] = ga
+    for k in range(n):
+        u = aux[A_U + k]
+        ga = aux[A_GA + k]
+        kappa = (aux[A_UP + k] * w1 * w1 + 2.0 * aux[A_UA + k] * ad * w1
+                 + aux[A_GAA + k] * ad * ad + ga * add)
         aux[A_KAPPA + k] = kappa
         aux[A_SPEED + k] = u * w1 + ga * ad
         su2 += u * u
@@ -128,8 +176,8 @@ def paths_linkage(phi1, w1, a, ad, add, P, aux):
 def path_speed(k, t, y, P, ACT):
     """Path k's rocker speed v_k = u_k·ω1 + g_a,k·a' [rad/s] at (t, y), from the closed form."""
     a, ad, _ = crank_actuator(t, ACT)
-    _, _, u, _, ga, _, _ = kinematics(y[L.PHI1] + P[P_OFFSET + k], a, P[L.P_B], P[L.P_D],
-                                      P[L.P_H], P[L.P_SIGMA])
+    ck, sk = path_cos_sin(k, math.cos(y[L.PHI1]), math.sin(y[L.PHI1]), P)
+    _, _, u, _, ga, _, _ = kinematics_at(ck, sk, a, P[L.P_B], P[L.P_D], P[L.P_H], P[L.P_SIGMA])
     return u * y[L.OMEGA1] + ga * ad
 
 

@@ -19,7 +19,14 @@ from ..physics import layout as L
 from ..physics.clutch import KIND_GRAZE
 from ..physics.linkage import rocker_angle
 from ..physics.path_contacts import settle_contacts
-from ..physics.paths import N_PATH_AUX, N_PATH_PARAMS, P_OFFSET, P_PATHS, paths_project, paths_rhs
+from ..physics.paths import (
+    N_PATH_AUX,
+    N_PATH_PARAMS,
+    P_OFFSET,
+    path_parameters,
+    paths_project,
+    paths_rhs,
+)
 from . import advance_layout as AL
 from . import paths_layout as PL
 from .output import COL, path_columns
@@ -74,9 +81,7 @@ class PathsSimulator(Simulator):
     def _parameter_vector(values):
         P = np.zeros(N_PATH_PARAMS)
         P[:L.N_PARAMS] = params_mod.parameter_vector(values)
-        offsets = params_mod.phase_offsets(values)
-        P[P_PATHS] = len(offsets)
-        P[P_OFFSET:P_OFFSET + len(offsets)] = offsets
+        path_parameters(P, params_mod.phase_offsets(values))
         return P
 
     # ------------------------------------------------------------------ set-up
