@@ -7,7 +7,11 @@ of additions ('reassoc' is left out): with reassociation allowed, the same kerne
 process and loaded from the disk cache in another gave results that differ in the 11th digit
 (conveyor, rk4: 8e-11 in φ4 after 46 ms), which broke "the device's lockstep run equals the
 offline core's, to the bit" whenever the two processes had not compiled alike. Without it they
-agree to the bit whichever process compiled (test_compiled_alike.py), for ~3 % of speed.
+agree to the bit whichever process compiled (test_compiled_alike.py), for ~3 % of speed. A
+second way the two differed (the N-path core, 8e-13 after 1 ms): a caller's call to a
+non-inlined kernel bound to whichever copy of the callee the JIT had loaded first, the callee's
+own in the process that compiled, the caller's in the one that loaded the cache. Every compiled
+object now calls its own copies (``_bind_callees_locally``).
 
 The rule for every kernel of the package (physics/, solver/, and any room that compiles): use
 these decorators, not numba's ``inline='always'`` (a bare ``njit`` only for an entry point called
@@ -45,6 +49,7 @@ import os
 
 from numba import njit
 from numba.core import types
+from numba.core.codegen import CPUCodeLibrary
 from numba.core.registry import CPUDispatcher
 
 FASTMATH = {'nsz', 'arcp', 'contract', 'afn'}
@@ -71,6 +76,41 @@ def drop_stale_caches():
 
 
 drop_stale_caches()
+
+
+def _bind_callees_locally(finalize_final_module):
+    """Wrap numba's last step before machine code so that a kernel's object code calls its own
+    copies of the kernels it calls, not whichever copy the JIT's linker saw first.
+
+    numba links every callee's optimized IR into its caller's module as ``linkonce_odr`` (weak in
+    the object code), and the JIT binds a weak symbol to the first definition it loaded. A process
+    that compiles fresh compiles (and loads) the callees first, so a caller's call to a non-inlined
+    ``kernel`` ran the callee's own library; a process that loads the caller from the disk cache
+    loads the caller's object first and ran the copy inside it. The two copies are the same IR
+    optimized again inside different modules and need not agree to the bit (the N-path core:
+    8e-13 after 1 ms of conveyor_4path). Here the module that becomes machine code gets those
+    copies as ``internal`` (after optimization, so the code is unchanged), while the module other
+    callers link keeps numba's ``linkonce_odr``: every object is self-contained and runs the same
+    code whether it was compiled in this process or loaded from the cache."""
+    def finalize_bound_locally(self):
+        module = self._final_module
+        if self._shared_module is None and any(not f.is_declaration for f in module.functions):
+            shared = module.clone()        # what numba's _get_module_for_linking would make
+            for f in shared.functions:
+                if not f.is_declaration and f.linkage.name == 'external':
+                    f.linkage = 'linkonce_odr'
+            self._shared_module = shared
+            for f in module.functions:
+                if not f.is_declaration and f.linkage.name == 'linkonce_odr':
+                    f.linkage = 'internal'
+        finalize_bound_locally.original(self)
+    finalize_bound_locally.original = finalize_final_module
+    return finalize_bound_locally
+
+
+if not hasattr(CPUCodeLibrary._finalize_final_module, 'original'):
+    CPUCodeLibrary._finalize_final_module = _bind_callees_locally(
+        CPUCodeLibrary._finalize_final_module)
 
 
 class OneSignature(CPUDispatcher):
