@@ -108,9 +108,11 @@ def _bind_callees_locally(finalize_final_module):
     return finalize_bound_locally
 
 
-if not hasattr(CPUCodeLibrary._finalize_final_module, 'original'):
-    CPUCodeLibrary._finalize_final_module = _bind_callees_locally(
-        CPUCodeLibrary._finalize_final_module)
+# (numba internals, checked on the pinned numba; another numba without this step runs as numba
+# links, bit-identical only among processes that share how their kernels were loaded)
+_FINALIZE = getattr(CPUCodeLibrary, '_finalize_final_module', None)
+if _FINALIZE is not None and not hasattr(_FINALIZE, 'original'):
+    CPUCodeLibrary._finalize_final_module = _bind_callees_locally(_FINALIZE)
 
 
 class OneSignature(CPUDispatcher):
