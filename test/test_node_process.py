@@ -3,6 +3,7 @@ clean shutdown on SIGINT and SIGTERM within 2 s."""
 import os
 import signal
 import sys
+from pathlib import Path
 
 import pytest
 from node_harness import SCENES, NodeProcess, Probe, domain_id, wait_for
@@ -34,6 +35,31 @@ def test_signal_shuts_down_cleanly(sig):
         output = proc.output()
     assert code == 0, output
     assert seconds < SHUTDOWN_S, (seconds, output)
+    assert 'Traceback' not in output, output
+
+
+def _loading_rclpy(pid):
+    """The process has begun to import rclpy (its extension is mapped): main() is running."""
+    try:
+        return '_rclpy_pybind11' in Path(f'/proc/{pid}/maps').read_text()
+    except OSError:
+        return False
+
+
+@pytest.mark.parametrize('moment', ['imports', 'ready'])
+def test_sigint_during_start_up_is_a_clean_stop(moment):
+    """SIGINT is how a node is stopped (Ctrl-C, ros2 launch), also while it starts: while it
+    imports rclpy and loads its kernels, and right after "ready" (before the executor spins)."""
+    domain = domain_id()
+    with NodeProcess(domain, command=console_script()) as proc:
+        if moment == 'imports':
+            assert wait_for(lambda: _loading_rclpy(proc.proc.pid) or not proc.alive(), 60.0)
+        else:
+            assert wait_for(lambda: 'cvt_sim ready' in proc.output() or not proc.alive(),
+                            180.0), proc.output()
+        code, _ = proc.stop(signal.SIGINT, timeout=30.0)
+        output = proc.output()
+    assert code == 0, output
     assert 'Traceback' not in output, output
 
 

@@ -1,18 +1,8 @@
 """``cvt_node``: run the device node until SIGINT / SIGTERM."""
 import argparse
+import faulthandler
 import os
 import sys
-
-import rclpy
-from rclpy._rclpy_pybind11 import UnknownROSArgsError
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-from rclpy.utilities import remove_ros_args
-
-from ..parameters import ParameterError
-from ..physics.linkage import GrashofError
-from ..scene import SceneError, params_file_problem
-from .node import DEFAULT_SCENE, CvtSimNode
-from .subscription_wait import RCLError
 
 # The loop thread must get the GIL soon after its deadline even while the executor thread is busy
 # (a flood of commands): Python's default 5 ms switch interval would be a 5 ms jitter.
@@ -21,6 +11,9 @@ GIL_SWITCH_INTERVAL_S = 1e-4
 # one thread wake-up less per message, which halves a lockstep round trip on a busy machine
 # (BENCHMARKS.md, "ROS node"). The user's own setting wins.
 PUBLICATION_MODE = ('RMW_FASTRTPS_PUBLICATION_MODE', 'SYNCHRONOUS')
+# A shutdown that hangs (a DDS thread, a publisher in use) must not hang ros2 launch or a test:
+# this long after the stop began, every thread's stack goes to stderr and the process exits 1.
+SHUTDOWN_WATCHDOG_S = 20.0
 
 
 EPILOG = """\
@@ -48,7 +41,8 @@ def build_parser():
 
 
 def main(args=None):
-    """Run the node until SIGINT / SIGTERM; returns the exit code (0 on a clean shutdown).
+    """Run the node until SIGINT / SIGTERM; returns the exit code: 0 when a signal stopped it
+    (at any moment, start-up included), 2 for a bad scene or parameter.
 
     ``args``: the command line without the program name (None: sys.argv[1:]); ROS arguments
     follow ``--ros-args``. Used by the ``cvt_node`` console script and ``cvt-sim node``.
@@ -56,12 +50,26 @@ def main(args=None):
     argv = list(sys.argv[1:] if args is None else args)
     try:
         return _run(argv)
-    except KeyboardInterrupt:   # Ctrl-C during start-up (imports, kernels, discovery)
-        print('cvt_node: interrupted', file=sys.stderr)
-        return 130
+    except KeyboardInterrupt:
+        # SIGINT is how a node is stopped (Ctrl-C, ros2 launch's shutdown), also one that is
+        # still starting (imports, kernels, discovery): a requested stop, not a failure
+        print('cvt_node: stopped during start-up', file=sys.stderr)
+        return 0
 
 
 def _run(argv):
+    # imported here, inside main's handling of SIGINT: rclpy and the kernels take a second
+    import rclpy
+    from rclpy._rclpy_pybind11 import UnknownROSArgsError
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    from rclpy.utilities import remove_ros_args
+
+    from ..parameters import ParameterError
+    from ..physics.linkage import GrashofError
+    from ..scene import SceneError, params_file_problem
+    from .node import DEFAULT_SCENE, CvtSimNode
+    from .subscription_wait import RCLError
+
     try:
         rest = remove_ros_args(['cvt_node'] + argv)[1:]
     except UnknownROSArgsError as exc:   # e.g. `--ros-args --help`: not a ROS argument
@@ -76,40 +84,41 @@ def _run(argv):
         base = None
     else:
         base = DEFAULT_SCENE
+    faulthandler.enable()   # a crash (in rcl, Fast DDS, a kernel) prints every thread's stack
     sys.setswitchinterval(GIL_SWITCH_INTERVAL_S)
     os.environ.setdefault(*PUBLICATION_MODE)
     rclpy.init(args=['cvt_node'] + argv)
+    node = executor = None
     try:
         node = CvtSimNode(base_scene=base)
+        # a params file whose key misses the node (a namespace, a renamed node) is skipped by
+        # ROS without a word: the node would run the defaults, the wrong experiment
+        problems = [params_file_problem(path, node.get_fully_qualified_name())
+                    for path in _params_files(argv)]
+        if any(problems):
+            print('\n'.join(f"cvt_node: {p}" for p in problems if p), file=sys.stderr)
+            return 2
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        node.start()
+        executor.spin()
     except (SceneError, ParameterError, GrashofError) as exc:
         print(f"cvt_node: {exc}", file=sys.stderr)
-        rclpy.try_shutdown()
         return 2
-    # a params file whose key misses the node (a namespace, a renamed node) is skipped by ROS
-    # without a word: the node would run the defaults, the wrong experiment
-    problems = [params_file_problem(path, node.get_fully_qualified_name())
-                for path in _params_files(argv)]
-    if any(problems):
-        print('\n'.join(f"cvt_node: {p}" for p in problems if p), file=sys.stderr)
-        node.destroy_node()
-        rclpy.try_shutdown()
-        return 2
-    executor = SingleThreadedExecutor()
-    executor.add_node(node)
-    node.start()
-    try:
-        executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        pass   # a signal at any point after rclpy.init (the node's start included): stop
     except RCLError:
         # a signal's shutdown of the context can land while the executor builds its wait set:
         # rcl refuses the dead context (seen once with SIGTERM on a busy machine)
-        if node.context.ok():
+        if node is None or node.context.ok():
             raise
     finally:
-        node.stop()
-        executor.shutdown(timeout_sec=0.5)
-        node.destroy_node()
+        faulthandler.dump_traceback_later(SHUTDOWN_WATCHDOG_S, exit=True)
+        if node is not None:
+            node.stop()
+            if executor is not None:
+                executor.shutdown(timeout_sec=0.5)
+            node.destroy_node()
         rclpy.try_shutdown()
     return 0
 
