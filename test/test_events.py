@@ -414,6 +414,81 @@ def test_a_catch_in_the_first_step_after_a_massless_nodes_release_is_located():
     assert abs(run.switches[2].t - reference.switches[2].t) < 1e-5
 
 
+def switches_against_reference(values, t0, t1, bounds):
+    """The run's switches in (t0, t1) at each setting of ``bounds`` ((method, rtol): how far
+    each may lie from the reference's) against the reference's: scipy DOP853 at rtol 1e-11,
+    from a tight run's state at t0, with steps of at most 0.1 µs and the core's half-open rule
+    (reference.py). The same switches, none late, each within its bound. (The run goes on 4 ms
+    past t1, so that its last steps are not clipped at t1.)"""
+    start = Simulator(dict(values, **{'solver.rtol': 1e-12, 'solver.atol': 1e-14}))
+    start.advance(t0)
+    reference = solve_reference(values, t1, rtol=1e-11, atol=1e-13, start=start,
+                                max_step=1e-7, half_open=True)
+    assert reference.switch_times
+    for (method, rtol), bound in bounds.items():
+        changes = {'solver.method': method}
+        if rtol is not None:
+            changes.update({'solver.rtol': rtol, 'solver.atol': 1e-2 * rtol})
+        run = Simulator(dict(values, **changes)).run(t1 + 4e-3, 0.01)
+        inside = [s for s in run.switches if t0 < s.t < t1 and s.kind != 'graze']
+        assert [(s.kind, s.engaged) for s in inside] == [
+            ('engage' if mode else 'release', bool(mode)) for mode in reference.switch_modes
+        ], (method, rtol)
+        assert max(abs(s.t - r) for s, r in zip(inside, reference.switch_times,
+                                                strict=True)) < bound, (method, rtol)
+        assert run.diagnostics['possible_missed_events'] == 0, (method, rtol)
+
+
+# the load at which a short open interval appears after the release at 63.48 ms (rtol 1e-10),
+# found by bisecting the load of random machine 271 (test_a_guard_that_falls_twice_...)
+EDGE_271 = 1.1370262409894205
+
+
+@pytest.mark.parametrize('rule', ['torque', 'twist'])
+def test_a_slip_that_leaves_its_band_downwards_after_a_release_is_caught_there(rule):
+    """A release on a clutch torque that dips just below zero and comes back (a graze of the
+    release guard: a parameter 1e-6 or 1e-8 off the edge where the dip appears, found by a
+    targeted search, 2026-11-28): the open slip rises by less than its band (1e-8 rad/s) and
+    falls out of it downwards a few µs later. Disarmed and never above the band, it was found
+    late, at the end of the look, by impact: on the torque rule's machine at rtol 1e-10 0.23 ms
+    on at a slip of -8e-3 rad/s, with rk4 0.12 ms on; on the twist rule's at rtol 1e-7 and
+    1e-10, 0.65 and 0.17 ms on. It is caught where it leaves the band, as by the reference."""
+    if rule == 'torque':
+        values = machine(0.03907551045482232, 0.12995250909724143, 0.005662561990797513,
+                         0.00020050294587726017, 0.4992581008884571, 2225.8473130258785, 0.0,
+                         EDGE_271 - 1e-6, 146.40367268413254)
+        t0, t1 = 0.0634, 0.0636
+    else:
+        values = machine(0.0063169001192809535, 0.04052974872448977, 0.0015570446843753318,
+                         0.0005201872321903329, 0.7277670430377084, 685.1629568462945,
+                         0.0010914167406934612, 9.80260781562036, 106.03628627873303, **{
+                             'linkage.rocker_length': 0.2812163129064863,
+                             'linkage.coupler_length': 0.3845817333979532,
+                             'motor.model': 'constant_speed', 'motor.speed': 118.36454747942182,
+                             'model.formulation': 'paper'}, **TWIST)
+        t0, t1 = 0.1686, 0.1688
+    switches_against_reference(values, t0, t1, {('dopri5', 1e-7): 2e-6, ('dopri5', 1e-10): 1e-7,
+                                                ('rk4', None): 1e-6})
+
+
+def test_a_massless_nodes_torque_that_leaves_its_band_downwards_after_a_catch_is_released_there():
+    """A massless undamped clutch node (J3 = 0, k = 0) catches with its twist, and so its
+    clutch torque c·θ, at zero; on a shallow contact (a load 1e-7 off the edge where it
+    appears, found by a targeted search, 2026-11-28) the torque rises less than its band and
+    falls out of it downwards 11 µs later. Disarmed and never above the band, it was found late
+    at the step's end at every setting: the clutch pulled for 0.1 ms (rk4) to 3.6 ms (rtol
+    1e-4, down to -0.92 N·m). It is released where it leaves the band, as by the reference."""
+    values = machine(0.019856877017677584, 0.0997454071378771, 0.001537331202475885, 0.0,
+                     0.09364108907696772, 977.606592310216, 0.0, 7.127018422788945,
+                     117.54794174405848, **{
+                         'linkage.rocker_length': 0.20986842368008007,
+                         'linkage.coupler_length': 0.2287062952395717,
+                         'motor.model': 'constant_speed', 'motor.speed': 110.8569558500764})
+    switches_against_reference(values, 0.136, 0.1362, {
+        ('dopri5', 1e-4): 1e-4, ('dopri5', 1e-7): 2e-6, ('dopri5', 1e-10): 1e-7,
+        ('rk4', None): 1e-6})
+
+
 def test_a_catch_the_rocker_speeds_interpolant_reaches_late_is_located_on_the_linkage():
     """A machine the wider strategy found (2026-11-27; a coupler as short as the rocker is long,
     a quadratic load), rtol 1e-4: over a 7 ms open step the rocker speed's interpolant lags the

@@ -21,6 +21,7 @@ from .advance_layout import C_RHS, CROSSING, FOUND_LATE, NO_EVENT
 from .dense_step import (
     emit_samples,
     guard_at,
+    locate_band_exit,
     locate_root,
     relaxed_twist,
     sample_due,
@@ -79,7 +80,8 @@ def _confirm_root(method, t, h, y, y_new, K, mode, P, ACT, clock, theta, hi, g0,
     start = theta - gt / rate if rate < 0.0 else -1.0
     lo, hi, glo, ghi = (theta, hi, gt, ghi) if gt > 0.0 else (0.0, theta, g0, gt)
     return locate_root(False, False, method, t, h, y, y_new, K, t, h, y, clock, mode, P, ACT, lo,
-                       hi, glo, ghi, start, rate, tol_theta, ytmp, dytmp, auxtmp, ytmp, counters)
+                       hi, glo, ghi, start, rate, tol_theta, 0.0, ytmp, dytmp, auxtmp, ytmp,
+                       counters)
 
 
 @kernel
@@ -187,7 +189,7 @@ def _twist_crossing(method, t, h, y, y_new, K, mode, P, ACT, clock, g0, g1, gtol
                       counters)
         if gt < -gtol:
             return locate_root(False, False, method, t, h, y, y_new, K, t, h, y, clock, mode, P,
-                               ACT, 0.0, best_x, g0, gt, -1.0, 0.0, tol_theta, ytmp, dytmp,
+                               ACT, 0.0, best_x, g0, gt, -1.0, 0.0, tol_theta, 0.0, ytmp, dytmp,
                                auxtmp, ytmp, counters)
     if hi > 0.0:
         ghi = g1 if hi == 1.0 else guard_at(method, hi, t, h, y, y_new, K, mode, P, ACT, ytmp,
@@ -202,11 +204,11 @@ def _twist_crossing(method, t, h, y, y_new, K, mode, P, ACT, clock, g0, g1, gtol
                     lo = 0.0
                     glo = g0
             return locate_root(False, False, method, t, h, y, y_new, K, t, h, y, clock, mode, P,
-                               ACT, lo, hi, glo, ghi, -1.0, 0.0, tol_theta, ytmp, dytmp, auxtmp,
-                               ytmp, counters)
+                               ACT, lo, hi, glo, ghi, -1.0, 0.0, tol_theta, 0.0, ytmp, dytmp,
+                               auxtmp, ytmp, counters)
     if g1 < -gtol:
         return locate_root(False, False, method, t, h, y, y_new, K, t, h, y, clock, mode, P, ACT,
-                           0.0, 1.0, g0, g1, -1.0, 0.0, tol_theta, ytmp, dytmp, auxtmp, ytmp,
+                           0.0, 1.0, g0, g1, -1.0, 0.0, tol_theta, 0.0, ytmp, dytmp, auxtmp, ytmp,
                            counters)
     return -1.0
 
@@ -228,7 +230,7 @@ def _left_band_upwards(method, t, h, y, y_new, K, mode, P, ACT, clock, g1, gtol,
         return -1.0
     tol_theta = max(1e-13, 8.0 * 2.2e-16 * abs(t)) / h
     return locate_root(False, False, method, t, h, y, y_new, K, t, h, y, clock, mode, P, ACT,
-                       best_x, 1.0, gt, g1, -1.0, 0.0, tol_theta, ytmp, dytmp, auxtmp, ytmp,
+                       best_x, 1.0, gt, g1, -1.0, 0.0, tol_theta, 0.0, ytmp, dytmp, auxtmp, ytmp,
                        counters)
 
 
@@ -338,7 +340,7 @@ def watch_step(method, kind, err_idx, t, h, clipped, t_end, y, y_new, K, mode, P
                     theta = first_root(G, ga, gb, tol_theta)
                 else:   # the polynomial does not bracket the true guard's fall: located on it
                     theta = locate_root(False, False, method, t, h, y, y_new, K, t, h, y, clock,
-                                        mode, P, ACT, 0.0, 1.0, g0, g1, -1.0, 0.0, tol_theta,
+                                        mode, P, ACT, 0.0, 1.0, g0, g1, -1.0, 0.0, tol_theta, 0.0,
                                         ytmp, dytmp, auxtmp, ytmp, counters)
             else:
                 tm, gm = lowest_point(G, -gtol)
@@ -356,7 +358,7 @@ def watch_step(method, kind, err_idx, t, h, clipped, t_end, y, y_new, K, mode, P
                         else:
                             theta = locate_root(False, False, method, t, h, y, y_new, K, t, h, y,
                                                 clock, mode, P, ACT, 0.0, tm, ga, gt, -1.0, 0.0,
-                                                tol_theta, ytmp, dytmp, auxtmp, ytmp, counters)
+                                                tol_theta, 0.0, ytmp, dytmp, auxtmp, ytmp, counters)
             if hi > 0.0:
                 fire = CROSSING
                 settle = True
@@ -368,13 +370,21 @@ def watch_step(method, kind, err_idx, t, h, clipped, t_end, y, y_new, K, mode, P
             if theta >= 0.0:
                 fire = CROSSING
     if fire == NO_EVENT and g1 < -gtol and not (armed and g0 > 0.0):
-        # from inside the band (just after a switch) to below it: located if the guard left
-        # the band upwards first (a short phase: a heavy load's second catch, a short
-        # engagement), else found late. Or from just under the band: a massless damped node's
-        # release leaves the slip the release's torque band over the damping below zero (2e-8
-        # rad/s with k = 0.01 N·m·s/rad), and the catch 1.8 ms on was in that first step
+        # from inside the band (just after a switch) to below it: located after where the
+        # guard left the band upwards (a short phase: a heavy load's second catch, a short
+        # engagement), else where it leaves it downwards. Or from just under the band: a
+        # massless damped node's release leaves the slip the release's torque band over the
+        # damping below zero (2e-8 rad/s with k = 0.01 N·m·s/rad), and the catch 1.8 ms on was
+        # in that first step
         theta = _left_band_upwards(method, t, h, y, y_new, K, mode, P, ACT, clock, g1, gtol,
                                    C, G, ytmp, dytmp, auxtmp, counters)
+        if theta < 0.0:
+            # never above the band: where the guard leaves it downwards (a contact of higher
+            # order than the reset decided by: dense_step.locate_band_exit), not late
+            tol_theta = max(1e-13, 8.0 * 2.2e-16 * abs(t)) / h
+            theta = locate_band_exit(False, False, method, t, h, y, y_new, K, t, h, y, clock,
+                                     mode, P, ACT, g0, g1, gtol, tol_theta, ytmp, dytmp, auxtmp,
+                                     ytmp, counters)
         if theta >= 0.0:
             fire = CROSSING
     if fire == NO_EVENT and g1 < -gtol:
