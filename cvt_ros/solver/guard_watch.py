@@ -27,6 +27,7 @@ from .dense_step import (
     sample_due,
     take_step,
 )
+from .slip_look import poly_rate
 from .steppers import DOPRI5, ERR_FULL, FULL, MASSLESS
 from .witness import (
     N_POLY,
@@ -49,7 +50,10 @@ from .witness import (
 # were not short), instead of a whole new step that finds the root again at its very start.
 # Where it lands past by more than rtol × the guard's scale (the scene's torque scale for a
 # release: -0.31 N·m at rtol 1e-4 where that is 4e-3) it is moved back the same way, and no
-# settling step aims further past than half that.
+# settling step aims further past than half that. The twist rule's release (guard max(θ, Tc/c),
+# scale: the torque scale over c) is moved back only, on the rate of its larger part: it was
+# never settled, and landed up to 177 × that bound past (-1.2e-4 rad at rtol 1e-4: the twist
+# and Tc/c both below zero, 2 µs late); its landings short are left to a new step, as they were.
 SETTLE_STEPS = 3
 SETTLE_OVERSHOOT = 1.25
 # Only a landing that fell short by a dense output's error is settled (5e4 bands at most on the
@@ -290,6 +294,15 @@ def relax_twist(t1, h, y, y_new, mode, P, ACT, aux1, dytmp, counters):
 
 
 @inline_kernel
+def _twist_guard_rate(C1, G, x):
+    """dG/dθ of the twist rule's guard max(θ, Tc/c) at θ = x: the rate of the larger part (its
+    two polynomials, witness.guard_polynomial; engaged, neither has an exponential term)."""
+    if poly_value(C1, x) > poly_value(G, x):
+        return poly_rate(C1, x, 1.0)
+    return guard_rate(G, x)
+
+
+@inline_kernel
 def _aim_past(g1, bound):
     """Where a settling Newton step aims the guard: past zero by a quarter of how far the landing
     was off (SETTLE_OVERSHOOT), but by no more than half of how far past zero a switch may be
@@ -323,6 +336,7 @@ def watch_step(method, kind, err_idx, t, h, clipped, t_end, y, y_new, K, mode, P
     fire = NO_EVENT
     theta = 1.0
     settle = False   # G is the guard's polynomial at the located root: Newton may move it on
+    twist = False    # the twist rule's: C[1] and G its two parts, settled back only
     if armed and g0 > 0.0:
         tol_theta = max(1e-13, 8.0 * 2.2e-16 * abs(t)) / h
         if guard_polynomial(method, h, y, y_new, K, mode, P, C, G):
@@ -369,6 +383,8 @@ def watch_step(method, kind, err_idx, t, h, clipped, t_end, y, y_new, K, mode, P
                                     C, G, tol_theta, ytmp, dytmp, auxtmp, counters)
             if theta >= 0.0:
                 fire = CROSSING
+                settle = True
+                twist = True
     if fire == NO_EVENT and g1 < -gtol and not (armed and g0 > 0.0):
         # from inside the band (just after a switch) to below it: located after where the
         # guard left the band upwards (a short phase: a heavy load's second catch, a short
@@ -401,7 +417,7 @@ def watch_step(method, kind, err_idx, t, h, clipped, t_end, y, y_new, K, mode, P
             gtol1 = guard_tolerance(mode, y_new, aux1, P)
             bound = rtol * guard_scale(mode, y_new, aux1, P)
             if g1 > gtol1:
-                if kind == MASSLESS:
+                if kind == MASSLESS or twist:
                     break   # its landings short are left to a new step (SETTLE_BANDS)
                 if short < 0.0:
                     if g1 > SETTLE_BANDS * gtol1:
@@ -424,7 +440,7 @@ def watch_step(method, kind, err_idx, t, h, clipped, t_end, y, y_new, K, mode, P
             else:
                 break
             # a Newton step on the guard polynomial's rate, aimed just past zero
-            rate = guard_rate(G, theta)
+            rate = _twist_guard_rate(C[1], G, theta) if twist else guard_rate(G, theta)
             if it == SETTLE_STEPS or not rate < 0.0:
                 break
             theta_next = min(1.0, theta - (g1 - _aim_past(g1, bound)) / rate)
