@@ -102,8 +102,11 @@ def _true_guard(split, exact, method, m, t, h, y0, y1, K, tau, hs, z0, clock, mo
 
 @kernel
 def locate_root(split, exact, method, t, h, y0, y1, K, tau, hs, z0, clock, mode, P, ACT, lo, hi,
-                glo, ghi, start, start_slope, tol_theta, ytmp, dytmp, auxtmp, ztmp, counters):
-    """The root of the true guard g(θ), g(lo) > 0 > g(hi); θ just past it (within tol_theta).
+                glo, ghi, start, start_slope, tol_theta, offset, ytmp, dytmp, auxtmp, ztmp,
+                counters):
+    """The root of g(θ) = the true guard + ``offset``, g(lo) > 0 > g(hi); θ just past it (within
+    tol_theta). (offset: 0 for the guard's own root; its band for where it leaves the band
+    downwards, ``locate_band_exit``.)
 
     θ runs over the step [t, t+h] (split = False: the guard through the right-hand side) or
     over the output sub-step [tau, tau+hs] (the slip, with the linkage's rocker speed).
@@ -127,7 +130,7 @@ def locate_root(split, exact, method, t, h, y0, y1, K, tau, hs, z0, clock, mode,
         else:
             m = illinois_point(it, lo, hi, glo, ghi)
         gm = _true_guard(split, exact, method, m, t, h, y0, y1, K, tau, hs, z0, clock, mode, P,
-                         ACT, ytmp, dytmp, auxtmp, ztmp, counters)
+                         ACT, ytmp, dytmp, auxtmp, ztmp, counters) + offset
         lo, hi, glo, ghi, side = illinois_update(m, gm, lo, hi, glo, ghi, side)
         if side == 0 or hi - lo <= tol_theta:
             break
@@ -142,13 +145,33 @@ def locate_root(split, exact, method, t, h, y0, y1, K, tau, hs, z0, clock, mode,
             # the secant sits on the root: one point half a tolerance over it closes the bracket
             p = m + (0.5 * tol_theta if gm > 0.0 else -0.5 * tol_theta)
             gp = _true_guard(split, exact, method, p, t, h, y0, y1, K, tau, hs, z0, clock, mode,
-                             P, ACT, ytmp, dytmp, auxtmp, ztmp, counters)
+                             P, ACT, ytmp, dytmp, auxtmp, ztmp, counters) + offset
             lo, hi, glo, ghi, side = illinois_update(p, gp, lo, hi, glo, ghi, side)
             if side == 0:
                 break
         else:
             nxt = m + step
     return hi
+
+
+@kernel
+def locate_band_exit(split, exact, method, t, h, y0, y1, K, tau, hs, z0, clock, mode, P, ACT, g0,
+                     g1, band, tol_theta, ytmp, dytmp, auxtmp, ztmp, counters):
+    """θ just past where the true guard, inside its band at θ = 0 (g0) and below it at θ = 1
+    (g1) without having left it upwards, crosses the band's lower edge −band (as locate_root);
+    −1 when g0, g1 do not bracket it. A reset leaves the guard at zero with a first-order rate
+    that a higher order can overturn at once: a release on a clutch torque that dips just
+    below zero and comes back, whose slip then rises less than its band (1e-10 of the speeds)
+    before it falls back; a massless node's catch, whose torque c·θ starts at zero and, on a
+    shallow contact, falls again. The switch belongs where the guard leaves its band, as the
+    reference makes it (reference.py, half_open), not at the end of the step or look (an impact
+    0.23 ms on at a slip of −8e-3 rad/s; a clutch that pulled for up to 3.6 ms, down to
+    −0.92 N·m: test_events.py). paths_watch.locate_band_exit does the same for each path."""
+    if not g0 + band > 0.0 > g1 + band:
+        return -1.0
+    return locate_root(split, exact, method, t, h, y0, y1, K, tau, hs, z0, clock, mode, P, ACT,
+                       0.0, 1.0, g0 + band, g1 + band, -1.0, 0.0, tol_theta, band, ytmp, dytmp,
+                       auxtmp, ztmp, counters)
 
 
 @inline_kernel

@@ -11,7 +11,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from ..physics import layout as L
-from ..physics.clutch import clutch_engages, clutch_guard
+from ..physics.clutch import clutch_engages, clutch_guard, guard_tolerance
 from ..physics.dynamics import project, rhs
 from .simulator import Simulator
 
@@ -47,10 +47,18 @@ def next_mode(t, y, mode, P, ACT, dy, aux, scratch):
 
 
 def solve_reference(values, t_end, method='DOP853', rtol=1e-12, atol=1e-14, t_eval=None,
-                    max_switches=100000, start=None):
+                    max_switches=100000, start=None, max_step=np.inf, half_open=False):
     """Integrate a scene from its initial state (or from the state of the Simulator ``start``,
     at its time) to t_end [s] with scipy; returns the final state, the switch times and modes,
-    and the number of RHS evaluations."""
+    and the number of RHS evaluations.
+
+    scipy looks for an event's sign change at its steps' ends only: a phase shorter than a step
+    is seen only with ``max_step`` [s] below it. ``half_open``: the core's half-open rule, as
+    paths_reference.py keeps it for N paths: a guard that a segment starts inside its band (a
+    switch's new guard) is watched for leaving the band, upwards (armed from there: its root is
+    the switch) or downwards (a switch there), not for its root, which it sits on. Without it
+    a guard that a reset leaves at zero and that falls out of the band at once is lost when the
+    rounding starts it just below zero (no sign change), or switched at the segment's start."""
     P, ACT, t, y, mode = initial_state(values, start)
     dy = np.empty(L.N_STATE)
     aux = np.empty(L.N_AUX)
@@ -68,20 +76,39 @@ def solve_reference(values, t_end, method='DOP853', rtol=1e-12, atol=1e-14, t_ev
         rhs(tt, yy, mode, P, ACT, dy, aux)
         return clutch_guard(mode, yy, dy, aux, P)[0]
 
+    def band_edge(side):
+        def edge(tt, yy):
+            rhs(tt, yy, mode, P, ACT, dy, aux)
+            return clutch_guard(mode, yy, dy, aux, P)[0] - side * guard_tolerance(mode, yy,
+                                                                                  aux, P)
+        edge.terminal = True
+        edge.direction = side
+        return edge
+
+    def outside_band(tt, yy):
+        rhs(tt, yy, mode, P, ACT, dy, aux)
+        return abs(clutch_guard(mode, yy, dy, aux, P)[0]) > guard_tolerance(mode, yy, aux, P)
+
     guard.terminal = True
     guard.direction = -1.0
+    # (event, leaves the band upwards: arm, no switch)
+    disarmed = ((band_edge(1.0), True), (band_edge(-1.0), False))
+    armed = not half_open or (start is not None and start.ms[1] == 1) or outside_band(t, y)
     while t < t_end and len(result.switch_times) < max_switches:
         seg_eval = None
         if t_eval is not None:
             seg_eval = t_eval[(t_eval >= t) & (t_eval <= t_end)]
+        watched = ((guard, False),) if armed else disarmed
         sol = solve_ivp(fun, (t, t_end), y, method=method, rtol=rtol, atol=atol,
-                        events=guard, t_eval=seg_eval)
+                        events=[w[0] for w in watched], t_eval=seg_eval, max_step=max_step)
         result.nfev += sol.nfev
         if not sol.success:
             raise RuntimeError(f"solve_ivp failed at t = {sol.t[-1]}: {sol.message}")
-        if sol.status == 1 and len(sol.t_events[0]):
-            t_new = float(sol.t_events[0][0])
-            y = np.array(sol.y_events[0][0])
+        arming = False
+        if sol.status == 1:
+            t_new, i = min((float(te[0]), i) for i, te in enumerate(sol.t_events) if len(te))
+            y = np.array(sol.y_events[i][0])
+            arming = watched[i][1]
         else:
             t_new = float(sol.t[-1])
             y = np.array(sol.y[:, -1])
@@ -95,11 +122,16 @@ def solve_reference(values, t_end, method='DOP853', rtol=1e-12, atol=1e-14, t_ev
         t = t_new
         if sol.status != 1:
             break
+        if arming:
+            armed = True
+            continue
         new = next_mode(t, y, mode, P, ACT, dy, aux, scratch)
         if new is None:
+            armed = not half_open
             continue
         mode = new
         project(t, y, mode, P, ACT)
+        armed = not half_open or outside_band(t, y)
         result.switch_times.append(t)
         result.switch_modes.append(mode)
     result.t = t

@@ -41,6 +41,7 @@ from .advance_layout import (
 )
 from .dense_step import (
     emit_samples,
+    locate_band_exit,
     locate_root,
     sample_due,
     take_step,
@@ -74,10 +75,10 @@ from .witness import N_POLY, hermite_minimum, hermite_root, poly_value
 # refined where the bound could hide a dip (slip_look.split_dip), so the length trades looks against
 # refinements: on the stiff shaft 3 rad (bound 0.21·|a|) took 62 % fewer looks than 0.75 rad
 # everywhere and 16–24 % less time, the same switches. Near its band (just after a release, or
-# after a crossing of the rocker speed's interpolant alone) a slip is not watched for a crossing,
-# and one that leaves the band downwards within a look is found late, not located: short looks
-# there. And where a long look's slip falls to zero: within 3 rad of a ring it can cross zero
-# three times, and only the first is the catch.
+# after a crossing of the rocker speed's interpolant alone) a slip is not watched for a crossing
+# but for leaving the band (upwards, then a fall; or downwards, located where it leaves it:
+# dense_step.locate_band_exit), in short looks. And where a long look's slip falls to zero:
+# within 3 rad of a ring it can cross zero three times, and only the first is the catch.
 EXACT_PHASE_STEP = 0.75  # [rad] near the band, and while a fast real mode is alive
 ARMED_PHASE_STEP = 3.0   # [rad] while the slip is clearly positive (armed, > 2 bands)
 OUTPUT_RTOL = 1e-7   # loosest tolerance of the open output integrated on its own clock
@@ -359,7 +360,7 @@ def split_output(method, exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, at
                                                   lo, hi)
                 sigma = locate_root(True, exact, method, t, h, y, y_new, K, tau, hs, z, clock,
                                     mode, P, ACT, lo, hi, gt_lo, gt_hi, start, start_slope,
-                                    tol_s, ycomb, dytmp, auxtmp, ztmp, counters)
+                                    tol_s, 0.0, ycomb, dytmp, auxtmp, ztmp, counters)
             elif gt_hi >= -gtol:
                 fire = NO_EVENT   # a dip of the rocker speed's interpolant alone
                 if hi == 1.0:
@@ -368,6 +369,21 @@ def split_output(method, exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, at
                 fire = NO_EVENT   # the true slip never left the band upwards: found late
             else:
                 sigma = lo if gt_lo <= 0.0 else hi
+        if fire == NO_EVENT and g1 < -gtol and not (armed and g0 > 0.0):
+            # from inside the band to below it, never above it: where the true slip leaves the
+            # band downwards (dense_step.locate_band_exit), not late at the look's end
+            tol_s = max(1e-13, 8.0 * 2.2e-16 * abs(tau)) / hs
+            sigma = locate_band_exit(
+                True, exact, method, t, h, y, y_new, K, tau, hs, z, clock, mode, P, ACT,
+                true_split_slip(method, exact, 0.0, t, h, y, y_new, K, tau, hs, z, clock, P, ACT,
+                                ycomb, ztmp),
+                true_split_slip(method, exact, 1.0, t, h, y, y_new, K, tau, hs, z, clock, P, ACT,
+                                ycomb, ztmp),
+                gtol, tol_s, ycomb, dytmp, auxtmp, ztmp, counters)
+            if sigma >= 0.0:
+                fire = CROSSING
+            else:
+                sigma = 1.0
         if fire == NO_EVENT and g1 < -gtol:
             fire = FOUND_LATE
         if fire != NO_EVENT:
