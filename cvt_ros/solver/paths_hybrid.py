@@ -54,6 +54,7 @@ from ..physics.paths import (
     paths_project,
     paths_rhs,
     set_size,
+    take_linkage,
 )
 from . import advance_layout as AL
 from .advance_layout import DIP_STACK, N_MODAL
@@ -384,6 +385,7 @@ def advance_paths(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, coun
             # no switch, or the true state has not reached the guard yet: go on from here
             if fire == AL.NO_EVENT:
                 h_prop = max(h_prop, h * factor) if clipped else h * factor
+            take_linkage(aux1, auxtmp, P)   # (aux1: the right-hand side at y)
             paths_project(t, y, mode, P, ACT, auxtmp)
             for i in range(n):
                 K[0, i] = K[6, i]
@@ -395,7 +397,9 @@ def advance_paths(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, coun
         # ---- reset map: the new engaged set (physics/path_contacts.py)
         old = mode
         exclude = 0
+        take_linkage(aux1, auxtmp, P)
         paths_project(t, y, old, P, ACT, auxtmp)
+        take_linkage(auxtmp, aux0, P)
         if old & bit(path):   # a release: the path leaves the set and is not re-decided
             exclude = bit(path)
             mode = old & ~exclude
