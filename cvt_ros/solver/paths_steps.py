@@ -81,15 +81,8 @@ def paths_step(method, kind, t, y, h, mode, P, ACT, K, y_new, ytmp, aux, rtol, a
         y_new[i] = y[i] + h * dot
     paths_evaluate(kind, t + h, y_new, mode, P, ACT, K[6], aux)
     counters[C_RHS] += 6
-    err_idx = ERR_INPUT if kind == INPUT else ERR_FULL
-    total = 0.0
-    for i in err_idx:
-        total += _scaled_error(i, h, y, y_new, K, rtol, atol)
-    # every rocker speed under error control, as the one path's is (its dense polynomial is
-    # what each path's slip is watched on, paths_open.py)
-    for i in range(V_PATH, n):
-        total += _scaled_error(i, h, y, y_new, K, rtol, atol)
-    return math.sqrt(total / (err_idx.shape[0] + n - V_PATH))
+    return _error_norm(False, ERR_INPUT if kind == INPUT else ERR_FULL, h, y, y_new, K, rtol,
+                       atol)
 
 
 @kernel
@@ -104,12 +97,23 @@ def paths_euler_step(t, y, h, mode, P, ACT, K, y_new, aux, rtol, atol, counters)
         y_new[i] = y[i] + h * K[0, i]
     paths_evaluate(FULL, t + h, y_new, mode, P, ACT, K[6], aux)
     counters[C_RHS] += 1
+    return _error_norm(True, ERR_FULL, h, y, y_new, K, rtol, atol)
+
+
+@inline_kernel
+def _error_norm(euler, err_idx, h, y, y_new, K, rtol, atol):
+    """The RMS of a step's error estimates over the states err_idx and every rocker speed (under
+    error control as the one path's is: its dense polynomial is what each path's slip is watched
+    on, paths_open.py): Dormand–Prince's, or an Euler step's (``euler``)."""
+    n = y.shape[0]
     total = 0.0
-    for i in ERR_FULL:
-        total += _euler_error(i, h, y, y_new, K, rtol, atol)
+    for i in err_idx:
+        total += _euler_error(i, h, y, y_new, K, rtol, atol) if euler else _scaled_error(
+            i, h, y, y_new, K, rtol, atol)
     for i in range(V_PATH, n):
-        total += _euler_error(i, h, y, y_new, K, rtol, atol)
-    return math.sqrt(total / (ERR_FULL.shape[0] + n - V_PATH))
+        total += _euler_error(i, h, y, y_new, K, rtol, atol) if euler else _scaled_error(
+            i, h, y, y_new, K, rtol, atol)
+    return math.sqrt(total / (err_idx.shape[0] + n - V_PATH))
 
 
 @inline_kernel
