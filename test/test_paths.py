@@ -27,13 +27,18 @@ from test_events import (
 
 from cvt_ros.parameters import ParameterError, phase_offsets, validate
 from cvt_ros.physics import layout as L
+from cvt_ros.physics.paths import N_PATH_AUX, V_PATH, paths_rhs
 from cvt_ros.scene import available_scenes, load_scene
+from cvt_ros.solver import advance_layout as AL
 from cvt_ros.solver.fidelity import make_simulator
 from cvt_ros.solver.output import COLUMNS, CSV_COLUMNS, csv_columns, path_columns
+from cvt_ros.solver.paths_hybrid import CREEP_EULER
 from cvt_ros.solver.paths_reference import solve_paths_reference
 from cvt_ros.solver.paths_simulator import PathsSimulator
+from cvt_ros.solver.paths_steps import paths_euler_step, paths_step
 from cvt_ros.solver.period import PeriodStepper
 from cvt_ros.solver.simulator import Simulator
+from cvt_ros.solver.steppers import DOPRI5, ERR_FULL, FULL
 
 RTOLS = (1e-4, 1e-6, 1e-8, 1e-10)
 SPAN = 0.5
@@ -294,6 +299,33 @@ def test_no_release_is_placed_further_past_its_guard_than_the_tolerance():
         releases = [s.value for s in result.switches if s.kind == 'release']
         assert len(releases) > 5 and min(releases) >= -rtol * scale, rtol
         assert path_stray(result, 4) < STRAY, rtol
+
+
+def test_a_creep_step_is_euler_only_where_its_error_estimate_is_true_and_tiny():
+    """The creep onto a catch (paths_hybrid._creep_onto_catch) takes explicit Euler steps where
+    their error estimate h/2·(f(end) − f(start)) is below CREEP_EULER of the tolerance: from a
+    running 4-path conveyor, an Euler step's distance to Dormand–Prince's over the same h is
+    what the estimate says (within 10 %, in the step's norm), below CREEP_EULER at the creep's
+    ~2e-10 s and far above it at 1e-4 s (a Dormand–Prince step then)."""
+    sim = make_simulator(load_scene('conveyor', {'paths.count': 4}))
+    sim.run(0.5, 0.5)
+    n, rtol, atol = len(sim.y), 2e-6, 2e-8
+    mode = int(sim.ms[0])
+    K = np.zeros((7, n))
+    aux, counters = np.zeros(N_PATH_AUX), np.zeros(AL.N_COUNTERS, dtype=sim.counters.dtype)
+    paths_rhs(sim.t, sim.y, mode, sim.P, sim.ACT, K[0], aux)
+    scale = atol + rtol * np.abs(sim.y)
+    dynamic = np.r_[ERR_FULL, np.arange(V_PATH, n)]
+    estimates = {}
+    for h in (2e-10, 1e-4):
+        euler, dopri = np.zeros(n), np.zeros(n)
+        estimates[h] = paths_euler_step(sim.t, sim.y, h, mode, sim.P, sim.ACT, K, euler, aux,
+                                        rtol, atol, counters)
+        paths_step(DOPRI5, FULL, sim.t, sim.y, h, mode, sim.P, sim.ACT, K, dopri, np.zeros(n),
+                   aux, rtol, atol, counters)
+        apart = math.sqrt(np.mean(((euler - dopri) / scale)[dynamic] ** 2))
+        assert apart == pytest.approx(estimates[h], rel=0.1), h
+    assert estimates[2e-10] < CREEP_EULER < 1e3 * CREEP_EULER < estimates[1e-4]
 
 
 @pytest.mark.parametrize('scene', ['paper', 'conveyor', 'mixer', 'rigid_shaft',

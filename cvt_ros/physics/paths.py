@@ -36,7 +36,7 @@ from .clutch import (
 )
 from .compiled import inline_kernel, kernel
 from .drives import crank_actuator, load_torque, motor_torque
-from .linkage import kinematics_at, rocker_angle, rocker_cos_sin
+from .linkage import kinematics_at, rocker_angle
 
 TWO_PI = 2.0 * math.pi
 MAX_PATHS = 8
@@ -85,7 +85,8 @@ A_JUMP = A_SLIP_RATE + MAX_PATHS  # −s_k: the speed jump an impact asks of con
 A_UP = A_JUMP + MAX_PATHS         # u'_k = ∂u_k/∂φ1 [1/rad]; with u_k, g_a,k and the next two:
 A_UA = A_UP + MAX_PATHS           # u_a,k [1/m]          the linkage solved at (φ1, a) of
 A_GAA = A_UA + MAX_PATHS          # g_aa,k [rad/m²]      A_LINK (paths_linkage's cache)
-A_LINK = A_GAA + MAX_PATHS        # φ1, a and P's stamp of that solve
+A_ROCKER = A_GAA + MAX_PATHS      # cos φ2, sin φ2 of path 1 (its rocker angle) there
+A_LINK = A_ROCKER + 2             # φ1, a and P's stamp of that solve
 N_PATH_AUX = A_LINK + 3
 
 NO_SET = -1   # ``impact``/``choose_engaged``: no valid set found
@@ -137,8 +138,9 @@ def path_cos_sin(k, c1, s1, P):
 def paths_linkage(phi1, w1, a, ad, add, P, aux):
     """Each path's u_k, g_a,k, κ_k, v_k into ``aux`` (closed form at φ1 + δ_k, physics.md §2, §5);
     returns (Σu_k², Σu_k·κ_k): the rockers reflected on the crank. The solve at (φ1, a) is
-    kept in ``aux`` (A_U, A_GA, A_UP, A_UA, A_GAA) and taken from there at the same φ1, a and
-    P: a reset (physics/path_contacts.py) and a sample evaluate one state several times."""
+    kept in ``aux`` (A_U, A_GA, A_UP, A_UA, A_GAA, A_ROCKER) and taken from there at the same
+    φ1, a and P: a reset (physics/path_contacts.py), a sample and the projection after a step
+    (``take_linkage``) evaluate one state several times."""
     n = n_paths(P)
     if not (aux[A_LINK] == phi1 and aux[A_LINK + 1] == a and aux[A_LINK + 2] == P[P_STAMP]):
         b = P[L.P_B]
@@ -149,7 +151,10 @@ def paths_linkage(phi1, w1, a, ad, add, P, aux):
         s1 = math.sin(phi1)
         for k in range(n):
             ck, sk = path_cos_sin(k, c1, s1, P)
-            _, _, u, up, ga, ua, gaa = kinematics_at(ck, sk, a, b, d, h, sigma)
+            c2, s2, u, up, ga, ua, gaa = kinematics_at(ck, sk, a, b, d, h, sigma)
+            if k == 0:
+                aux[A_ROCKER] = c2
+                aux[A_ROCKER + 1] = s2
             aux[A_U + k] = u
             aux[A_UP + k] = up
             aux[A_GA + k] = ga
@@ -170,6 +175,20 @@ def paths_linkage(phi1, w1, a, ad, add, P, aux):
         su2 += u * u
         suk += u * kappa
     return su2, suk
+
+
+@inline_kernel
+def take_linkage(source, aux, P):
+    """``paths_linkage``'s cached solve from the auxiliaries ``source`` into ``aux``: a state
+    the last right-hand side was evaluated at (a step's end) is projected without a solve."""
+    for k in range(n_paths(P)):
+        aux[A_U + k] = source[A_U + k]
+        aux[A_GA + k] = source[A_GA + k]
+        aux[A_UP + k] = source[A_UP + k]
+        aux[A_UA + k] = source[A_UA + k]
+        aux[A_GAA + k] = source[A_GAA + k]
+    for i in range(A_ROCKER, A_LINK + 3):
+        aux[i] = source[i]
 
 
 @inline_kernel
@@ -341,9 +360,8 @@ def paths_project(t, y, mode, P, ACT, aux):
     paths_linkage(y[L.PHI1], y[L.OMEGA1], a, ad, 0.0, P, aux)
     for k in range(n_paths(P)):
         y[V_PATH + k] = aux[A_SPEED + k]
-    c2, s2, _, _ = rocker_cos_sin(y[L.PHI1] + P[P_OFFSET], a, P[L.P_B], P[L.P_D], P[L.P_H],
-                                  P[L.P_SIGMA])
-    phi2 = math.atan2(s2, c2)   # on the branch of the integrated φ2, as physics/dynamics.py
+    # path 1's rocker from the solve at φ1 + δ_1 (its cosine and sine rotated: path_cos_sin)
+    phi2 = math.atan2(aux[A_ROCKER + 1], aux[A_ROCKER])   # on the integrated φ2's branch
     y[L.PHI2] = phi2 + TWO_PI * math.floor((y[L.PHI2] - phi2) / TWO_PI + 0.5)
     y[L.OMEGA2] = aux[A_SPEED]
     if mode != 0:

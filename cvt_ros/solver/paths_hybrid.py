@@ -54,6 +54,7 @@ from ..physics.paths import (
     paths_project,
     paths_rhs,
     set_size,
+    take_linkage,
 )
 from . import advance_layout as AL
 from .advance_layout import DIP_STACK, N_MODAL
@@ -70,15 +71,28 @@ from .hybrid import (
 )
 from .paths_layout import E_PATH, MAX_STATE
 from .paths_open import N_LOOK_ROWS, open_watch
-from .paths_steps import emit_paths_samples, paths_initial_step, paths_step
+from .paths_steps import emit_paths_samples, paths_euler_step, paths_initial_step, paths_step
 from .paths_watch import first_crossing, path_guard, path_guard_polynomial
-from .steppers import DOPRI5, DP_ERROR_EXPONENT, FULL, INPUT, MAX_FACTOR, MIN_FACTOR, SAFETY
+from .steppers import (
+    DOPRI5,
+    DP_ERROR_EXPONENT,
+    FULL,
+    INPUT,
+    MAX_FACTOR,
+    MIN_FACTOR,
+    RK4,
+    SAFETY,
+)
 from .witness import N_GUARD, N_POLY, guard_rate
 
 KIND_RELEASE = 0        # physics/clutch.py's KIND_* (the one-path event kinds)
 KIND_ENGAGE = 1
 KIND_ENGAGE_IMPACT = 2
 KIND_GRAZE = 3
+# A creep step onto a catch (``_creep_onto_catch``) is an explicit Euler step where its error
+# estimate (Heun's step against it) is below this fraction of the tolerance, Dormand–Prince's
+# where not
+CREEP_EULER = 1e-6
 
 
 @inline_kernel
@@ -120,7 +134,9 @@ def _creep_onto_catch(method, t, t_end, y, y_new, K, path, mode, P, ACT, aux1, y
     """Short true steps from a landing short of path's catch (y at t, K[6] and aux1 its rates)
     to the slip's band, each SETTLE_OVERSHOOT × the Newton step on the exact slip rate (as
     guard_watch.creep_onto_catch for one path); stops at the band or past it, or where a step
-    would go further past zero than the first landing fell short. Returns (t, slip)."""
+    would go further past zero than the first landing fell short. Returns (t, slip).
+    Dormand–Prince's steps are explicit Euler steps where those are as good (CREEP_EULER; at the
+    defaults ~1e-10 s long, one right-hand side instead of six), else its own."""
     g = aux1[A_SLIP + path]
     first = g
     n = y.shape[0]
@@ -133,14 +149,19 @@ def _creep_onto_catch(method, t, t_end, y, y_new, K, path, mode, P, ACT, aux1, y
             break
         for i in range(n):
             K[0, i] = K[6, i]
-        paths_step(method, FULL, t, y, dt, mode, P, ACT, K, y_new, ytmp, aux1, rtol, atol,
-                   counters)
+        stepper = method
+        if method != DOPRI5 or paths_euler_step(t, y, dt, mode, P, ACT, K, y_new, aux1, rtol,
+                                                atol, counters) > CREEP_EULER:
+            paths_step(method, FULL, t, y, dt, mode, P, ACT, K, y_new, ytmp, aux1, rtol, atol,
+                       counters)
+        else:
+            stepper = RK4   # (its samples from the Hermite cubic of y, y_new, K[0], K[6])
         if aux1[A_SLIP + path] < -first:   # too far past: stay (aux1 back at y)
             paths_rhs(t, y, mode, P, ACT, K[6], aux1)
             counters[AL.C_RHS] += 1
             break
         if sample_due(grid, counters, t + dt):
-            emit_paths_samples(method, t, dt, y, y_new, K, mode, P, ACT, grid, out, counters,
+            emit_paths_samples(stepper, t, dt, y, y_new, K, mode, P, ACT, grid, out, counters,
                                t + dt, ytmp, dytmp, auxtmp, False, zs, LIN, W, ztmp)
         t += dt
         for i in range(n):
@@ -384,6 +405,7 @@ def advance_paths(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, coun
             # no switch, or the true state has not reached the guard yet: go on from here
             if fire == AL.NO_EVENT:
                 h_prop = max(h_prop, h * factor) if clipped else h * factor
+            take_linkage(aux1, auxtmp, P)   # (aux1: the right-hand side at y)
             paths_project(t, y, mode, P, ACT, auxtmp)
             for i in range(n):
                 K[0, i] = K[6, i]
@@ -395,7 +417,9 @@ def advance_paths(t, t_end, y, ms, P, ACT, LIN, S, h_io, grid, out, events, coun
         # ---- reset map: the new engaged set (physics/path_contacts.py)
         old = mode
         exclude = 0
+        take_linkage(aux1, auxtmp, P)
         paths_project(t, y, old, P, ACT, auxtmp)
+        take_linkage(auxtmp, aux0, P)
         if old & bit(path):   # a release: the path leaves the set and is not re-decided
             exclude = bit(path)
             mode = old & ~exclude

@@ -31,6 +31,7 @@ from .steppers import (
     DP_E,
     ERR_FULL,
     ERR_INPUT,
+    FULL,
     INPUT,
     dense_state,
     rk4_combine,
@@ -80,15 +81,46 @@ def paths_step(method, kind, t, y, h, mode, P, ACT, K, y_new, ytmp, aux, rtol, a
         y_new[i] = y[i] + h * dot
     paths_evaluate(kind, t + h, y_new, mode, P, ACT, K[6], aux)
     counters[C_RHS] += 6
-    err_idx = ERR_INPUT if kind == INPUT else ERR_FULL
+    return _error_norm(False, ERR_INPUT if kind == INPUT else ERR_FULL, h, y, y_new, K, rtol,
+                       atol)
+
+
+@kernel
+def paths_euler_step(t, y, h, mode, P, ACT, K, y_new, aux, rtol, atol, counters):
+    """An explicit Euler step from (t, y), K[0] = f(t, y) given: y_new, K[6] = f(t + h, y_new)
+    (``aux`` there), one right-hand side; returns its local error estimate h/2·(K[6] − K[0])
+    (Heun's step against it) in paths_step's norm. For the creep onto a catch
+    (paths_hybrid._creep_onto_catch), whose steps are ~1e-10 s at the defaults: a Dormand–Prince
+    step there spends six right-hand sides on an error below rounding."""
+    n = y.shape[0]
+    for i in range(n):
+        y_new[i] = y[i] + h * K[0, i]
+    paths_evaluate(FULL, t + h, y_new, mode, P, ACT, K[6], aux)
+    counters[C_RHS] += 1
+    return _error_norm(True, ERR_FULL, h, y, y_new, K, rtol, atol)
+
+
+@inline_kernel
+def _error_norm(euler, err_idx, h, y, y_new, K, rtol, atol):
+    """The RMS of a step's error estimates over the states err_idx and every rocker speed (under
+    error control as the one path's is: its dense polynomial is what each path's slip is watched
+    on, paths_open.py): Dormand–Prince's, or an Euler step's (``euler``)."""
+    n = y.shape[0]
     total = 0.0
     for i in err_idx:
-        total += _scaled_error(i, h, y, y_new, K, rtol, atol)
-    # every rocker speed under error control, as the one path's is (its dense polynomial is
-    # what each path's slip is watched on, paths_open.py)
+        total += _euler_error(i, h, y, y_new, K, rtol, atol) if euler else _scaled_error(
+            i, h, y, y_new, K, rtol, atol)
     for i in range(V_PATH, n):
-        total += _scaled_error(i, h, y, y_new, K, rtol, atol)
+        total += _euler_error(i, h, y, y_new, K, rtol, atol) if euler else _scaled_error(
+            i, h, y, y_new, K, rtol, atol)
     return math.sqrt(total / (err_idx.shape[0] + n - V_PATH))
+
+
+@inline_kernel
+def _euler_error(i, h, y, y_new, K, rtol, atol):
+    """The Euler step's error estimate of state i, squared, in atol + rtol·|y|."""
+    r = 0.5 * h * (K[6, i] - K[0, i]) / (atol + rtol * max(abs(y[i]), abs(y_new[i])))
+    return r * r
 
 
 @inline_kernel

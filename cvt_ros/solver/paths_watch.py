@@ -54,8 +54,14 @@ def path_guard(k, mode, aux, P):
 @kernel
 def true_path_guard(k, method, theta, t, h, y0, y1, K, mode, P, ACT, ytmp, dytmp, auxtmp,
                     counters):
-    """Path k's guard at t + θ·h: the dense state through the right-hand side."""
+    """Path k's guard at t + θ·h: the dense state through the right-hand side; an open path's
+    slip where the node's speed is a state (ω3, or ω4 behind a rigid shaft) from its own
+    linkage alone (the right-hand side's value, without the other paths' linkages)."""
     dense_state(method, theta, h, y0, y1, K, ytmp)
+    rigid = P[L.P_RIGID] > 0.0
+    if not mode & bit(k) and (rigid or mode != 0 or P[L.P_J3] > 0.0):
+        node = ytmp[L.OMEGA4] if rigid else ytmp[L.OMEGA3]
+        return node - path_speed(k, t + theta * h, ytmp, P, ACT)
     paths_rhs(t + theta * h, ytmp, mode, P, ACT, dytmp, auxtmp)
     counters[C_RHS] += 1
     return path_guard(k, mode, auxtmp, P)[0]
