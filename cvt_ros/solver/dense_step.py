@@ -100,6 +100,13 @@ def _true_guard(split, exact, method, m, t, h, y0, y1, K, tau, hs, z0, clock, mo
     return guard_at(method, m, t, h, y0, y1, K, mode, P, ACT, ytmp, dytmp, auxtmp, counters)
 
 
+@inline_kernel
+def root_tolerance(t, h):
+    """How closely a root is located, as a fraction of a step (or look) h [s] at t [s]: 1e-13 s,
+    or 8 ulps of t where those are more (closer is below what t resolves)."""
+    return max(1e-13, 8.0 * 2.2e-16 * abs(t)) / h
+
+
 @kernel
 def locate_root(split, exact, method, t, h, y0, y1, K, tau, hs, z0, clock, mode, P, ACT, lo, hi,
                 glo, ghi, start, start_slope, tol_theta, offset, ytmp, dytmp, auxtmp, ztmp,

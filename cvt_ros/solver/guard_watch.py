@@ -24,6 +24,7 @@ from .dense_step import (
     locate_band_exit,
     locate_root,
     relaxed_twist,
+    root_tolerance,
     sample_due,
     take_step,
 )
@@ -232,7 +233,7 @@ def _left_band_upwards(method, t, h, y, y_new, K, mode, P, ACT, clock, g1, gtol,
     gt = guard_at(method, best_x, t, h, y, y_new, K, mode, P, ACT, ytmp, dytmp, auxtmp, counters)
     if not gt > gtol:
         return -1.0
-    tol_theta = max(1e-13, 8.0 * 2.2e-16 * abs(t)) / h
+    tol_theta = root_tolerance(t, h)
     return locate_root(False, False, method, t, h, y, y_new, K, t, h, y, clock, mode, P, ACT,
                        best_x, 1.0, gt, g1, -1.0, 0.0, tol_theta, 0.0, ytmp, dytmp, auxtmp, ytmp,
                        counters)
@@ -338,7 +339,7 @@ def watch_step(method, kind, err_idx, t, h, clipped, t_end, y, y_new, K, mode, P
     settle = False   # G is the guard's polynomial at the located root: Newton may move it on
     twist = False    # the twist rule's: C[1] and G its two parts, settled back only
     if armed and g0 > 0.0:
-        tol_theta = max(1e-13, 8.0 * 2.2e-16 * abs(t)) / h
+        tol_theta = root_tolerance(t, h)
         if guard_polynomial(method, h, y, y_new, K, mode, P, C, G):
             # (with its exponential term: a massless damped node's relaxing twist, which just
             # after a twist release can stand above the slip itself, so that the polynomial
@@ -397,7 +398,7 @@ def watch_step(method, kind, err_idx, t, h, clipped, t_end, y, y_new, K, mode, P
         if theta < 0.0:
             # never above the band: where the guard leaves it downwards (a contact of higher
             # order than the reset decided by: dense_step.locate_band_exit), not late
-            tol_theta = max(1e-13, 8.0 * 2.2e-16 * abs(t)) / h
+            tol_theta = root_tolerance(t, h)
             theta = locate_band_exit(False, False, method, t, h, y, y_new, K, t, h, y, clock,
                                      mode, P, ACT, g0, g1, gtol, tol_theta, ytmp, dytmp, auxtmp,
                                      ytmp, counters)

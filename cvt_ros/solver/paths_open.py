@@ -29,6 +29,7 @@ from ..physics.layout import N_OUTPUT, OMEGA1, OUTPUT_STATES, P_OUTPUT_RING, Z_O
 from ..physics.output_exact import modal_coordinates, modes_over, output_at, output_from_modes
 from ..physics.paths import V_PATH, bit, n_paths
 from .advance_layout import C_SUBSTEPS, CROSSING, FOUND_LATE, NO_EVENT
+from .dense_step import root_tolerance
 from .paths_steps import paths_step
 from .paths_watch import locate_band_exit, locate_path_root, open_slip
 from .slip_look import left_band_upwards, omega3_rate, poly_rate, split_dip
@@ -134,7 +135,7 @@ def _look_at_path(k, armed, method, t, h, y0, y1, K, tau, hs, x1, zs, LIN, W, cl
                 hi = tm
     if fire == CROSSING:
         # located on the true slip: the bracket's ends must hold there too
-        tol_s = max(1e-13, 8.0 * 2.2e-16 * abs(tau)) / hs
+        tol_s = root_tolerance(tau, hs)
         gt_hi = open_slip(k, method, hi, t, h, y0, y1, K, tau, hs, zs, LIN, W, P, ACT, ycomb,
                           ztmp)
         gt_lo = open_slip(k, method, lo, t, h, y0, y1, K, tau, hs, zs, LIN, W, P, ACT, ycomb,
@@ -184,7 +185,7 @@ def _look_at_path(k, armed, method, t, h, y0, y1, K, tau, hs, x1, zs, LIN, W, cl
         # band downwards (paths_watch.locate_band_exit), not late at the look's end
         gs = open_slip(k, method, 0.0, t, h, y0, y1, K, tau, hs, zs, LIN, W, P, ACT, ycomb, ztmp)
         ge = open_slip(k, method, 1.0, t, h, y0, y1, K, tau, hs, zs, LIN, W, P, ACT, ycomb, ztmp)
-        tol_s = max(1e-13, 8.0 * 2.2e-16 * abs(tau)) / hs
+        tol_s = root_tolerance(tau, hs)
         exit_at = locate_band_exit(True, k, method, t, h, y0, y1, K, 0, P, ACT, tau, hs, zs, LIN,
                                    W, gs, ge, gtol, tol_s, ycomb, dytmp, auxtmp, ztmp, counters)
         if exit_at >= 0.0:

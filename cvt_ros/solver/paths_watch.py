@@ -35,7 +35,7 @@ from ..physics.paths import (
 )
 from . import witness
 from .advance_layout import C_RHS, CROSSING, FOUND_LATE, NO_EVENT
-from .dense_step import MAX_SECANTS
+from .dense_step import MAX_SECANTS, root_tolerance
 from .guard_watch import DIP_CHECK
 from .steppers import dense_coefficients, dense_state
 
@@ -283,7 +283,7 @@ def first_crossing(armed, g0, g1, method, t, h, y0, y1, K, mode, P, ACT, aux1, C
     NO_EVENT when none. g0, g1: every path's guard at the step's start and end (g1 from
     aux1, written here); armed: the paths whose guard has left its band since their last
     switch (half-open rule)."""
-    tol_theta = max(1e-13, 8.0 * 2.2e-16 * abs(t)) / h
+    tol_theta = root_tolerance(t, h)
     n = n_paths(P)
     for k in range(n):
         g1[k] = path_guard(k, mode, aux1, P)[0]

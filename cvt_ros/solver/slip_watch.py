@@ -43,6 +43,7 @@ from .dense_step import (
     emit_samples,
     locate_band_exit,
     locate_root,
+    root_tolerance,
     sample_due,
     take_step,
     true_split_slip,
@@ -329,7 +330,7 @@ def split_output(method, exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, at
         if fire == CROSSING:
             # located on the true slip (the linkage's rocker speed, as the reset map sees
             # it): the end values must bracket it there too
-            tol_s = max(1e-13, 8.0 * 2.2e-16 * abs(tau)) / hs
+            tol_s = root_tolerance(tau, hs)
             gt_hi = true_split_slip(method, exact, hi, t, h, y, y_new, K, tau, hs, z, clock, P,
                                     ACT, ycomb, ztmp)
             gt_lo = true_split_slip(method, exact, lo, t, h, y, y_new, K, tau, hs, z, clock, P,
@@ -372,7 +373,7 @@ def split_output(method, exact, t, h, y, y_new, K, mode, P, ACT, clock, rtol, at
         if fire == NO_EVENT and g1 < -gtol and not (armed and g0 > 0.0):
             # from inside the band to below it, never above it: where the true slip leaves the
             # band downwards (dense_step.locate_band_exit), not late at the look's end
-            tol_s = max(1e-13, 8.0 * 2.2e-16 * abs(tau)) / hs
+            tol_s = root_tolerance(tau, hs)
             sigma = locate_band_exit(
                 True, exact, method, t, h, y, y_new, K, tau, hs, z, clock, mode, P, ACT,
                 true_split_slip(method, exact, 0.0, t, h, y, y_new, K, tau, hs, z, clock, P, ACT,
